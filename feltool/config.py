@@ -1,0 +1,316 @@
+"""The experiment config: a YAML file validated by a pydantic schema.
+
+Every field carries a description with its unit; ``docs/configuration.md`` is generated from this
+schema (``python -m feltool.docgen``) and a test keeps the two in sync. Unknown keys are errors, so
+a typo is never silently ignored, and every error names the YAML path that is wrong.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from feltool.errors import ConfigError
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class SimConfig(Strict):
+    """How the closed loop is simulated."""
+
+    rate_hz: PositiveFloat = Field(100.0, description="Control and sampling rate in [Hz]; one "
+                                   "feedforward/feedback sample per step.")
+    substeps: int = Field(1, ge=1, le=1000, description="Integration steps per control step "
+                          "(the torque is held constant over them).")
+    integrator: Literal["semi_implicit_euler", "explicit_euler"] = Field(
+        "semi_implicit_euler", description="Integration scheme of the forward model: "
+        "semi-implicit (symplectic) Euler, v += dt a; q += dt v, or explicit Euler.")
+    cycles: int = Field(200, ge=1, le=10_000_000, description="Learning cycles to run; one "
+                        "cycle is one period of the rhythmic motion.")
+    max_error_rad: PositiveFloat = Field(1.5, description="A seed is stopped as diverged (a "
+                                         "fall) when a controlled quantity is further than this "
+                                         "from its reference, in [rad].")
+    max_velocity: PositiveFloat = Field(1000.0, description="A seed is stopped as diverged when a "
+                                        "joint velocity exceeds this, in [rad/s].")
+
+
+class PrimitiveConfig(Strict):
+    """Parameters of a rhythmic movement primitive (eq. 2.1-2.3)."""
+
+    basis: int = Field(10, ge=1, le=1000, description="Number of von Mises basis functions N.")
+    alpha_z: PositiveFloat = Field(25.0, description="Timing constant alpha_z of eq. 2.2 [-].")
+    beta_z: PositiveFloat | None = Field(None, description="Timing constant beta_z [-]; "
+                                         "default alpha_z / 4 (critically damped).")
+    width: PositiveFloat | None = Field(None, description="Width h of the von Mises basis [-]; "
+                                        "default N / 2.")
+    amplitude: PositiveFloat = Field(1.0, description="Amplitude factor r of the forcing term.")
+
+
+class PrimitiveOverride(Strict):
+    """Per-joint override of the primitive defaults; unset fields keep the defaults."""
+
+    basis: int | None = Field(None, ge=1, le=1000, description="Number of basis functions N.")
+    alpha_z: PositiveFloat | None = Field(None, description="Timing constant alpha_z [-].")
+    beta_z: PositiveFloat | None = Field(None, description="Timing constant beta_z [-].")
+    width: PositiveFloat | None = Field(None, description="Basis width h [-].")
+    amplitude: PositiveFloat | None = Field(None, description="Amplitude factor r [-].")
+
+
+class SineDemo(Strict):
+    """A demonstrated sine, fitted into the joint's RMP by least squares (eq. 2.4)."""
+
+    kind: Literal["sine"] = Field(description="Demonstration kind.")
+    mean: FiniteFloat = Field(0.0, description="Mean (the RMP goal) in [rad].")
+    amplitude: FiniteFloat = Field(description="Amplitude in [rad].")
+    phase: FiniteFloat = Field(0.0, description="Phase offset in [rad] at the start of a cycle.")
+
+
+class Gains(Strict):
+    """PD gains of a joint's feedback law (eq. 2.7 or §3.1)."""
+
+    kp: NonNegFloat = Field(description="Proportional gain K_P in [N m/rad].")
+    kd: NonNegFloat = Field(description="Derivative gain K_D in [N m s/rad].")
+
+
+class Target(Strict):
+    """What a stabilizing controller holds (§3.1): a joint angle, or a link's absolute angle
+    given as the sum of the joint angles from the base to that link (planar chains)."""
+
+    value: FiniteFloat = Field(description="Target value of the stabilized quantity in [rad].")
+    link_angle: list[str] | None = Field(None, min_length=1, description="Joints whose angles "
+                                         "add up to the stabilized link's absolute angle, e.g. "
+                                         "[shoulder, elbow] for q1 + q2; default the joint itself.")
+
+
+class LearnConfig(Strict):
+    """Marks a joint's RMP as learned by FEL and says how its parameters start."""
+
+    init: Literal["random", "demo", "zero"] = Field("random", description="Initial weights: "
+                                                   "random (from the seed), the demo's fit, or zero.")
+    weight_scale: NonNegFloat = Field(0.3, description="Random initial weights ~ N(0, s^2) with "
+                                      "s = weight_scale * max |w| over the demo-fitted primitives [-].")
+    goal_spread: NonNegFloat = Field(0.3, description="Random initial goal uniform in goal_center "
+                                     "+- goal_spread, in [rad].")
+    goal_center: FiniteFloat | None = Field(None, description="Centre of the initial goal in [rad]; "
+                                            "default: the value that meets the joint's target with "
+                                            "the other joints at their goals (or the demo's mean).")
+
+
+class JointConfig(Strict):
+    """The role of one joint in the experiment."""
+
+    role: Literal["track", "stabilize", "passive", "locked"] = Field(description="track: PD on "
+        "the joint's RMP (eq. 2.7); stabilize: PD holding a target (§3.1); passive: unactuated; "
+        "locked: removed from the model at `posture`.")
+    demo: SineDemo | None = Field(None, description="Demonstration fitted into the RMP (eq. 2.4).")
+    gains: Gains | None = Field(None, description="Feedback gains (track and stabilize).")
+    target: Target | None = Field(None, description="Stabilized quantity (stabilize only).")
+    learn: LearnConfig | None = Field(None, description="Learn this joint's RMP by FEL.")
+    primitive: PrimitiveOverride | None = Field(None, description="Per-joint RMP settings.")
+    posture: FiniteFloat = Field(0.0, description="Angle a locked joint is held at, in [rad].")
+
+    @model_validator(mode="after")
+    def _role_fields(self) -> JointConfig:
+        problems = []
+        if self.role in ("track", "stabilize") and self.gains is None:
+            problems.append(f"a '{self.role}' joint needs 'gains'")
+        if self.role == "stabilize" and self.target is None:
+            problems.append("a 'stabilize' joint needs 'target'")
+        if self.role != "stabilize" and self.target is not None:
+            problems.append(f"'target' is only for 'stabilize' joints, not '{self.role}'")
+        if self.role in ("track", "stabilize", "passive") and self.demo is None and (
+                self.learn is None or self.learn.init == "demo"):
+            problems.append(f"a '{self.role}' joint needs a 'demo' or 'learn' (with init random "
+                            "or zero) to define its RMP")
+        if self.role == "locked" and (self.learn or self.demo or self.gains):
+            problems.append("a 'locked' joint takes only 'posture'")
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
+
+
+class Rates(Strict):
+    """Learning rates alpha of eq. 3.6, separate for weights and goal."""
+
+    weights: NonNegFloat = Field(0.15, description="Rate for the RMP weights (gradient) or the "
+                                 "fraction of the Levenberg-Marquardt step taken (gauss_newton).")
+    goal: NonNegFloat = Field(2.0e-5, description="Rate for the RMP goal (always gradient). The "
+                              "update sums over a cycle's samples, so rates scale with rate_hz.")
+
+
+class LearningConfig(Strict):
+    """Feedback error learning of the RMP parameters (eq. 3.6)."""
+
+    error: Literal["stabilizing", "all_feedback"] | list[str] = Field(
+        "stabilizing", description="Error signal e: the stabilizing feedback (fully actuated "
+        "robots), all feedback (underactuated robots), or a list of joints whose feedback counts.")
+    update: Literal["gradient", "gauss_newton"] = Field("gradient", description="gradient: eq. "
+        "3.6; gauss_newton: a Levenberg-Marquardt step on the weights (goal stays on gradient).")
+    step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
+        "cycle (the RMP is then reset onto its new limit cycle) or after every control step.")
+    rates: Rates = Field(default_factory=Rates, description="Learning rates.")
+    damping: PositiveFloat = Field(1.0e-2, description="Levenberg-Marquardt damping, relative to "
+                                   "the mean diagonal of J^T J [-].")
+    sensitivity: Literal["exact", "finite_difference"] = Field("exact", description="How "
+        "d u_ff / d theta is computed: exact (RMP sensitivity x RNEA derivatives) or the "
+        "thesis's numerical differentiation.")
+    fd_epsilon: PositiveFloat = Field(1.0e-6, description="Finite-difference step, relative "
+                                      "to max(1, |theta_i|) [-].")
+
+
+class ExperimentConfig(Strict):
+    """One FEL experiment: a robot, the roles of its joints, and how to learn."""
+
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$",
+                      description="Experiment name; used for the run directory.")
+    description: str = Field("", description="Free text shown in summaries.")
+    robot: str = Field(min_length=1, description="Bundled robot name, a URDF path (relative to "
+                       "the config file), or example-robot-data:NAME.")
+    gravity: FiniteFloat | list[FiniteFloat] = Field(9.8, description="Gravity in [m/s^2]: a "
+        "magnitude along the world's -z, or a 3-vector. The thesis uses 9.8.")
+    backend: Literal["pinocchio"] = Field("pinocchio", description="Dynamics backend of the "
+                                          "known models.")
+    period_s: PositiveFloat = Field(description="Period T of the rhythmic motion in [s].")
+    sim: SimConfig = Field(default_factory=SimConfig, description="Simulation settings.")
+    primitives: PrimitiveConfig = Field(default_factory=PrimitiveConfig,
+                                        description="Defaults for every joint's RMP.")
+    joints: dict[str, JointConfig] = Field(min_length=1, description="Role of each joint, by "
+                                           "URDF joint name; joints not listed are locked at 0.")
+    learning: LearningConfig = Field(default_factory=LearningConfig,
+                                     description="Feedback error learning.")
+    seeds: int | list[Annotated[int, Field(ge=0)]] = Field(20, description="Number of seeds "
+                                                          "(0..n-1) or an explicit list.")
+
+    @field_validator("gravity")
+    @classmethod
+    def _gravity_vector(cls, g):
+        if isinstance(g, list) and len(g) != 3:
+            raise ValueError("a gravity vector needs 3 components [m/s^2]")
+        return g
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, s):
+        if isinstance(s, int) and s < 1:
+            raise ValueError("needs at least one seed")
+        if isinstance(s, list) and not s:
+            raise ValueError("needs at least one seed")
+        return s
+
+    @model_validator(mode="after")
+    def _cross_checks(self) -> ExperimentConfig:
+        steps = self.period_s * self.sim.rate_hz
+        if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 2:
+            raise ValueError(f"period_s * sim.rate_hz = {steps:g} samples per cycle; it must be "
+                             "a whole number of at least 2")
+        return self
+
+    @property
+    def seed_list(self) -> list[int]:
+        return list(range(self.seeds)) if isinstance(self.seeds, int) else list(self.seeds)
+
+    @property
+    def dt(self) -> float:
+        """Control step in [s]."""
+        return 1.0 / self.sim.rate_hz
+
+    @property
+    def steps_per_cycle(self) -> int:
+        return int(round(self.period_s * self.sim.rate_hz))
+
+
+# -- loading --------------------------------------------------------------------------------------
+
+def read_yaml(path: Path) -> dict[str, Any]:
+    """Read a YAML mapping safely (no object construction), with errors that name the file."""
+    try:
+        text = Path(path).read_text()
+    except FileNotFoundError:
+        raise ConfigError([("", "config file not found")], str(path)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError([("", f"cannot read config: {exc}")], str(path)) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError([("", f"{where}not valid YAML ({problem})")], str(path)) from None
+    if not isinstance(data, dict):
+        raise ConfigError([("", "the config must be a YAML mapping of fields")], str(path))
+    return data
+
+
+def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Apply ``a.b.c=VALUE`` overrides (VALUE parsed as YAML) to a raw config mapping."""
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError([(item, "an override must look like a.b.c=VALUE")], "--set")
+        key, raw = item.split("=", 1)
+        parts = [p for p in key.strip().split(".") if p]
+        if not parts:
+            raise ConfigError([(item, "an override needs a field path before '='")], "--set")
+        try:
+            value = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            value = raw
+        node = data
+        for i, part in enumerate(parts[:-1]):
+            child = node.get(part)
+            if child is None:
+                child = node[part] = {}
+            if not isinstance(child, dict):
+                raise ConfigError([(".".join(parts[: i + 1]),
+                                    "cannot set a field inside a value that is not a mapping")],
+                                  "--set")
+            node = child
+        node[parts[-1]] = value
+    return data
+
+
+def _loc(loc: tuple) -> str:
+    return ".".join(str(p) for p in loc if not (isinstance(p, str) and p.startswith("function-")))
+
+
+def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
+    problems = []
+    for err in exc.errors():
+        loc = tuple(p for p in err["loc"]
+                    if p not in ("int", "list[int]", "float", "list[float]", "str",
+                                 "list[constrained-int]", "literal['stabilizing','all_feedback']")
+                    and not str(p).startswith(("list[", "literal[", "constrained")))
+        msg = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            msg = "unknown field (check the spelling; see docs/configuration.md)"
+        elif err["type"] == "missing":
+            msg = "required field is missing"
+        problems.append((_loc(loc), msg))
+    # A union (e.g. seeds: int | list) reports one error per branch; keep one per path.
+    seen, unique = set(), []
+    for p in problems:
+        if p[0] not in seen:
+            seen.add(p[0])
+            unique.append(p)
+    return unique
+
+
+def parse_config(data: dict[str, Any], source: str | None = None) -> ExperimentConfig:
+    """Validate a raw mapping; raises :class:`ConfigError` listing every problem."""
+    try:
+        return ExperimentConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(_pydantic_problems(exc), source) from None
+
+
+def config_to_yaml(cfg: ExperimentConfig) -> str:
+    """The fully resolved config (defaults filled in) as YAML."""
+    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)

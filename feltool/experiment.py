@@ -1,0 +1,499 @@
+"""Build an experiment from a config, and run it seed by seed.
+
+Building is separate from running: :func:`load_experiment` returns an :class:`Experiment` whose
+robot, primitives, feedback laws and learner can be inspected before anything is simulated;
+:func:`run_seed` runs one seed's learning cycles and returns its metrics.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from feltool.config import (ExperimentConfig, apply_overrides, parse_config, read_yaml)
+from feltool.control import FeedbackLaw
+from feltool.dynamics import Dynamics, make_dynamics
+from feltool.errors import ConfigError, FeltoolError, RobotError
+from feltool.fel import FeedbackErrorLearner, feedforward
+from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
+from feltool.robot import Robot, data_dir, load_robot
+from feltool.simulate import ClosedLoop
+
+
+@dataclass
+class Experiment:
+    """Everything one experiment needs, built from its config; inspect before running.
+
+    Attributes:
+        config: The validated config.
+        robot: The robot with locked joints removed (the known model).
+        dynamics: Known inverse/forward models of ``robot``.
+        joints: Joint names in velocity-index order.
+        primitives: The forward trajectory generator (one RMP per joint).
+        theta_demo: Parameters of every joint's RMP before random initialisation ``(P,)``.
+        law: Feedback laws.
+        loop: Closed-loop simulator.
+        learner: The FEL learner.
+        init: Per learned joint: ``(slice, weight std, goal centre, goal spread, kind)``.
+    """
+
+    config: ExperimentConfig
+    robot: Robot
+    dynamics: Dynamics
+    joints: list[str]
+    primitives: PrimitiveSet
+    theta_demo: np.ndarray
+    law: FeedbackLaw
+    loop: ClosedLoop
+    learner: FeedbackErrorLearner
+    init: list[tuple[slice, float, float, float, str]] = field(default_factory=list)
+    source: Path | None = None
+
+    @property
+    def learned_joints(self) -> list[str]:
+        return [name for name, jc in self.config.joints.items() if jc.learn is not None]
+
+    @property
+    def stabilized_joints(self) -> list[str]:
+        return [n for n in self.joints if self.config.joints[n].role == "stabilize"]
+
+    @property
+    def error_joints(self) -> list[str]:
+        return [n for n, m in zip(self.joints, self.learner.error_mask) if m > 0]
+
+    def initial_parameters(self, seed: int) -> np.ndarray:
+        """RMP parameters at the start of learning; random draws come from ``seed`` only."""
+        rng = np.random.default_rng(seed)
+        theta = self.theta_demo.copy()
+        for sl, w_std, g_center, g_spread, kind in self.init:
+            nw = sl.stop - sl.start - 1
+            if kind == "random":
+                theta[sl.start:sl.stop - 1] = rng.normal(0.0, w_std, nw)
+                theta[sl.stop - 1] = g_center + rng.uniform(-g_spread, g_spread)
+            elif kind == "zero":
+                theta[sl] = 0.0
+                theta[sl.stop - 1] = g_center
+        return theta
+
+    def split_parameters(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """``{"<joint>.weights": w, "<joint>.goal": g}`` for the learned joints."""
+        out = {}
+        for name in self.learned_joints:
+            sl = self.primitives.slices[self.joints.index(name)]
+            out[f"{name}.weights"] = theta[sl.start:sl.stop - 1].copy()
+            out[f"{name}.goal"] = np.array(theta[sl.stop - 1])
+        return out
+
+
+def resolve_config_path(spec: str | Path) -> Path:
+    """A config path, or the name of a bundled config (``two_link_standard``)."""
+    path = Path(spec)
+    if path.is_file():
+        return path
+    bundled = data_dir("configs") / (path.name if path.suffix else f"{path.name}.yaml")
+    if not path.exists() and bundled.is_file() and len(path.parts) <= 2:
+        return bundled
+    raise ConfigError([("", "config file not found")], str(spec))
+
+
+def load_experiment(path: str | Path, overrides: list[str] | None = None) -> Experiment:
+    """Read, validate and build an experiment (raises :class:`ConfigError` listing problems)."""
+    path = resolve_config_path(path)
+    raw = apply_overrides(read_yaml(path), list(overrides or []))
+    return build_experiment(raw, source=path)
+
+
+def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[ExperimentConfig, Robot]:
+    """Check a raw config completely: schema, robot, and every joint name against the robot.
+
+    All problems are collected into one :class:`ConfigError`, one line per problem.
+    """
+    src = str(source) if source else None
+    problems: list[tuple[str, str]] = []
+    cfg = None
+    try:
+        cfg = parse_config(raw, src)
+    except ConfigError as exc:
+        problems += exc.problems
+    robot = None
+    if isinstance(raw.get("robot"), str) and raw["robot"]:
+        try:
+            robot = load_robot(raw["robot"], base_dir=source.parent if source else None)
+        except RobotError as exc:
+            problems.append(("robot", str(exc)))
+    if robot is not None:
+        problems += _name_problems(raw, robot)
+    if problems:
+        # The same path may be reported by the schema and by the name checks; keep both texts.
+        raise ConfigError(_dedupe(problems), src)
+    return cfg, robot
+
+
+def _dedupe(problems):
+    seen, out = set(), []
+    for p in problems:
+        if p not in seen:
+            seen.add(p)
+            out.append(p)
+    return out
+
+
+def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
+    known = robot.joint_names
+    listing = ", ".join(known)
+    joints = raw.get("joints")
+    problems = []
+    if not isinstance(joints, dict):
+        return problems
+    for name, jc in joints.items():
+        if name not in known:
+            problems.append((f"joints.{name}", f"robot '{robot.name}' has no joint '{name}' "
+                                               f"(its joints: {listing})"))
+            continue
+        if robot.model.joints[robot.joint_id(name)].nv != 1:
+            problems.append((f"joints.{name}", "feltool roles need a one-degree-of-freedom joint"))
+        target = jc.get("target") if isinstance(jc, dict) else None
+        links = target.get("link_angle") if isinstance(target, dict) else None
+        if isinstance(links, list):
+            for i, other in enumerate(links):
+                if other not in known:
+                    problems.append((f"joints.{name}.target.link_angle.{i}",
+                                     f"robot '{robot.name}' has no joint '{other}' (its joints: {listing})"))
+                elif other in joints and isinstance(joints[other], dict) and \
+                        joints[other].get("role") == "locked":
+                    problems.append((f"joints.{name}.target.link_angle.{i}",
+                                     f"joint '{other}' is locked"))
+            if name not in links:
+                problems.append((f"joints.{name}.target.link_angle",
+                                 f"must include the stabilizing joint '{name}' itself"))
+    error = (raw.get("learning") or {}).get("error") if isinstance(raw.get("learning"), dict) else None
+    if isinstance(error, list):
+        for i, other in enumerate(error):
+            if other not in known:
+                problems.append((f"learning.error.{i}", f"robot '{robot.name}' has no joint "
+                                                        f"'{other}' (its joints: {listing})"))
+            elif other not in joints:
+                problems.append((f"learning.error.{i}", f"joint '{other}' is not configured "
+                                                        "(add it under joints)"))
+    elif error == "stabilizing" or error is None:
+        if not any(isinstance(jc, dict) and jc.get("role") == "stabilize" for jc in joints.values()):
+            problems.append(("learning.error", "'stabilizing' needs at least one joint with "
+                                               "role: stabilize"))
+    return problems
+
+
+def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experiment:
+    """Build an :class:`Experiment` from a raw config mapping."""
+    cfg, full_robot = validate(raw, source)
+    locked = {n: 0.0 for n in full_robot.joint_names if n not in cfg.joints}
+    locked.update({n: jc.posture for n, jc in cfg.joints.items() if jc.role == "locked"})
+    robot = reduce_robot(full_robot, locked)
+    robot.set_gravity(cfg.gravity)
+    dynamics = make_dynamics(robot.model, cfg.backend)
+    nv = robot.model.nv
+    joints = [""] * nv
+    for name in robot.joint_names:
+        joints[robot.v_index(name)] = name
+    if robot.model.nq != nv:
+        raise ConfigError([("robot", "after locking the unconfigured joints the model still has "
+                                     "joints with more than one coordinate; lock them or list "
+                                     "them under joints")], str(source) if source else None)
+
+    # Primitives: fit demos (eq. 2.4); learned joints get their random start per seed.
+    dt, T = cfg.dt, cfg.period_s
+    prims: dict[int, RhythmicPrimitive] = {}
+    thetas: dict[int, np.ndarray] = {}
+    fine_t = np.linspace(0.0, T, 2000, endpoint=False)
+    for i, name in enumerate(joints):
+        jc = cfg.joints[name]
+        settings = cfg.primitives.model_dump()
+        if jc.primitive is not None:
+            settings.update({k: v for k, v in jc.primitive.model_dump().items() if v is not None})
+        prim = RhythmicPrimitive(settings["basis"], T, dt, settings["alpha_z"], settings["beta_z"],
+                                 settings["width"], settings["amplitude"])
+        prims[i] = prim
+        if jc.demo is not None:
+            d = jc.demo
+            q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t)
+            thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=d.mean)
+        else:
+            thetas[i] = np.zeros(prim.n_params)
+    primitives = PrimitiveSet(prims, nv)
+    theta_demo = np.concatenate([thetas[i] for i in range(nv)])
+
+    # Feedback laws.
+    C = np.zeros((nv, nv))
+    kp, kd, targets = np.zeros(nv), np.zeros(nv), np.zeros(nv)
+    tracking, stabilizing, actuated = (np.zeros(nv, bool) for _ in range(3))
+    for i, name in enumerate(joints):
+        jc = cfg.joints[name]
+        actuated[i] = jc.role != "passive"
+        if jc.role == "track":
+            tracking[i], C[i, i] = True, 1.0
+        elif jc.role == "stabilize":
+            stabilizing[i] = True
+            for other in jc.target.link_angle or [name]:
+                C[i, joints.index(other)] += 1.0
+            targets[i] = jc.target.value
+        if jc.gains is not None and jc.role != "passive":
+            kp[i], kd[i] = jc.gains.kp, jc.gains.kd
+    law = FeedbackLaw(C, kp, kd, tracking, stabilizing, targets)
+    if stabilizing.any() and abs(np.linalg.det(C[np.ix_(stabilizing, stabilizing)])) < 1e-12:
+        raise ConfigError([("joints", "the stabilized quantities do not determine the "
+                                      "stabilizing joints (their link_angle rows are dependent)")],
+                          str(source) if source else None)
+
+    # Learner.
+    learned, is_goal, rates, init = [], [], [], []
+    demo_w = [np.abs(thetas[i][:-1]).max() for i, n in enumerate(joints)
+              if cfg.joints[n].demo is not None]
+    w_ref = max(demo_w) if demo_w else 1.0
+    goals = np.array([thetas[i][-1] for i in range(nv)])
+    centers = _goal_centers(law, goals)
+    L = cfg.learning
+    for i, name in enumerate(joints):
+        jc = cfg.joints[name]
+        if jc.learn is None:
+            continue
+        sl = primitives.slices[i]
+        idx = list(range(sl.start, sl.stop))
+        learned += idx
+        is_goal += [False] * (len(idx) - 1) + [True]
+        rates += [L.rates.weights] * (len(idx) - 1) + [L.rates.goal]
+        center = jc.learn.goal_center if jc.learn.goal_center is not None else (
+            float(centers[i]) if stabilizing[i] else float(goals[i]))
+        init.append((sl, jc.learn.weight_scale * w_ref, center, jc.learn.goal_spread,
+                     jc.learn.init))
+    if L.error == "stabilizing":
+        error_mask = stabilizing.astype(float)
+    elif L.error == "all_feedback":
+        error_mask = actuated.astype(float)
+    else:
+        error_mask = np.array([1.0 if n in L.error else 0.0 for n in joints])
+    if L.step == "per_step" and L.update != "gradient":
+        raise ConfigError([("learning.update", "per_step learning supports only 'gradient'")],
+                          str(source) if source else None)
+    if L.step == "per_step" and L.sensitivity != "exact":
+        raise ConfigError([("learning.sensitivity", "per_step learning supports only 'exact'")],
+                          str(source) if source else None)
+    learner = FeedbackErrorLearner(primitives, np.array(learned, dtype=int),
+                                   np.array(is_goal, dtype=bool), error_mask,
+                                   np.array(rates), L.update, L.damping, L.sensitivity,
+                                   L.fd_epsilon)
+    loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator)
+    return Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
+                      init, source)
+
+
+def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:
+    """Goals that meet every stabilizing target with the other joints at their goals."""
+    q, _ = law.consistent_state(goals, np.zeros_like(goals))
+    return q
+
+
+def reduce_robot(robot: Robot, locked: dict[str, float]) -> Robot:
+    """The robot with ``locked`` joints fixed at the given angles (Pinocchio's reduced model)."""
+    if not locked:
+        return robot
+    q_ref = pin.neutral(robot.model)
+    ids = []
+    for name, posture in locked.items():
+        jid = robot.joint_id(name)
+        ids.append(jid)
+        joint = robot.model.joints[jid]
+        if joint.nq == 1:
+            q_ref[joint.idx_q] = posture
+    model = pin.buildReducedModel(robot.model, sorted(ids), q_ref)
+    if model.nv == 0:
+        raise ConfigError([("joints", "every joint is locked; nothing moves")])
+    return Robot(name=robot.name, model=model, source=robot.source, urdf_path=robot.urdf_path,
+                 package_dirs=robot.package_dirs)
+
+
+# -- running one seed ----------------------------------------------------------------------------
+
+@dataclass
+class SeedResult:
+    """One seed's outcome: metric rows, summary entry, learned parameters and traces."""
+
+    seed: int
+    rows: list[dict[str, float]]
+    summary: dict[str, Any]
+    params: dict[str, np.ndarray]
+    traces: dict[str, np.ndarray]
+
+
+def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
+             progress: Callable[[int, float], None] | None = None) -> SeedResult:
+    """Run one seed's learning and return its metrics (see the run directory's metrics.csv)."""
+    cfg = exp.config
+    cycles = cycles or cfg.sim.cycles
+    theta = exp.initial_parameters(seed)
+    n = exp.primitives.n_steps
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    rows, history, traces = [], [theta[exp.learner.learned].copy()], {}
+    diverged, reason = False, None
+    t0 = time.perf_counter()
+    steps = 0
+    err_names = exp.error_joints
+    for cycle in range(1, cycles + 1):
+        if cfg.learning.step == "per_step":
+            log, Qd, Vd, theta_next = _per_step_cycle(exp, theta, q, v)
+        else:
+            Qd, Vd, Ad = exp.primitives.desired(theta)
+            R, Rd = exp.law.references(Qd, Vd)
+            u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
+            log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+        steps += n
+        reason = _divergence(exp, log, Qd)
+        if reason:
+            diverged = True
+            break
+        if cfg.learning.step == "per_cycle":
+            J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad)
+            theta_next = exp.learner.step(theta, J, log.u_fb)
+        row = _metrics(exp, seed, cycle, log, Qd, theta)
+        rows.append(row)
+        if cycle == 1:
+            traces.update(_trace(exp, "first", log, Qd, theta))
+        traces.update(_trace(exp, "last", log, Qd, theta))
+        theta = theta_next
+        history.append(theta[exp.learner.learned].copy())
+        q, v = log.q_end, log.v_end
+        if progress is not None:
+            progress(cycle, row["fb_abs_mean_error"])
+    wall = time.perf_counter() - t0
+    summary = _seed_summary(exp, seed, rows, diverged, reason, wall, steps)
+    params = exp.split_parameters(theta)
+    hist = np.array(history)
+    for name in exp.learned_joints:
+        sl = exp.primitives.slices[exp.joints.index(name)]
+        cols = [c for c, p in enumerate(exp.learner.learned) if sl.start <= p < sl.stop]
+        params[f"{name}.weights_history"] = hist[:, cols[:-1]]
+        params[f"{name}.goal_history"] = hist[:, cols[-1]]
+    return SeedResult(seed, rows, summary, params, traces)
+
+
+def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v):
+    """One cycle with an update after every step; the RMP states run on continuously."""
+    prims, n, nv = exp.primitives, exp.primitives.n_steps, exp.primitives.nv
+    learner, law, dyn = exp.learner, exp.law, exp.dynamics
+    theta = theta.copy()
+    if not hasattr(exp, "_rmp_state"):
+        Qd, Vd, _ = prims.desired(theta)
+        exp._rmp_state = {i: (np.array([Qd[0, i], Vd[0, i]]), _periodic_S(p, i, prims))
+                          for i, p in prims.primitives.items()}
+    states = exp._rmp_state
+    Q, V, U, Qd, Vd = (np.empty((n, nv)) for _ in range(5))
+    for k in range(n):
+        qd, vd, ad = np.empty(nv), np.empty(nv), np.empty(nv)
+        Sq, Sv, Sa = {}, {}, {}
+        for i, p in prims.primitives.items():
+            x, S = states[i]
+            th = theta[prims.slices[i]]
+            qd[i], vd[i], ad[i] = x[0], x[1], p.acceleration(x, th, k)
+            Sq[i], Sv[i], Sa[i] = S[0], S[1], p.acceleration_sensitivity(S, k)
+        Qd[k], Vd[k] = qd, vd
+        R, Rd = law.references(qd[None], vd[None])
+        u_fb = law.feedback(q, v, R[0], Rd[0])
+        u_ff = dyn.inverse(qd, vd, ad)
+        Dq, Dv, M = dyn.inverse_derivatives(qd, vd, ad)
+        J = np.zeros((1, nv, learner.n_learned))
+        for i, cols, _, rows in learner._blocks:
+            sel = np.isin(rows, learner.learned)
+            J[0][:, cols] = (np.outer(Dq[:, i], Sq[i][sel]) + np.outer(Dv[:, i], Sv[i][sel])
+                             + np.outer(M[:, i], Sa[i][sel]))
+        Q[k], V[k], U[k] = q, v, u_fb
+        q, v = exp.loop.advance(q, v, exp.loop.actuated * (u_ff + u_fb))
+        for i, p in prims.primitives.items():
+            x, S = states[i]
+            th = theta[prims.slices[i]]
+            states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
+        theta = learner.step(theta, J, u_fb[None])
+    from feltool.simulate import CycleLog
+    return CycleLog(Q, V, U, q, v), Qd, Vd, theta
+
+
+def _periodic_S(prim: RhythmicPrimitive, i: int, prims: PrimitiveSet) -> np.ndarray:
+    return np.stack([prim.Xq[0], prim.Xv[0]])
+
+
+def _divergence(exp: Experiment, log, Qd: np.ndarray) -> str | None:
+    sim = exp.config.sim
+    if not (np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
+            and np.all(np.isfinite(log.q_end))):
+        return "the state became non-finite"
+    vmax = float(np.abs(log.v).max())
+    if vmax > sim.max_velocity:
+        return f"a joint velocity reached {vmax:.3g} rad/s (sim.max_velocity = {sim.max_velocity})"
+    R, _ = exp.law.references(Qd, Qd)
+    err = np.abs(R - exp.law.quantity(log.q))[:, exp.law.tracking | exp.law.stabilizing]
+    if err.size and err.max() > sim.max_error_rad:
+        return (f"a controlled quantity was {err.max():.3g} rad from its reference "
+                f"(sim.max_error_rad = {sim.max_error_rad}): the robot fell")
+    return None
+
+
+def _metrics(exp: Experiment, seed: int, cycle: int, log, Qd: np.ndarray,
+             theta: np.ndarray) -> dict[str, float]:
+    fb = np.abs(log.u_fb).mean(axis=0)
+    row: dict[str, float] = {"seed": seed, "cycle": cycle}
+    for i, name in enumerate(exp.joints):
+        row[f"fb_abs_mean_{name}"] = float(fb[i])
+    row["fb_abs_mean_stabilized"] = float(fb[exp.law.stabilizing].sum())
+    row["fb_abs_mean_total"] = float(fb.sum())
+    row["fb_abs_mean_error"] = float((fb * exp.learner.error_mask).sum())
+    rms = np.sqrt(np.mean((Qd - log.q) ** 2, axis=0))
+    for i, name in enumerate(exp.joints):
+        row[f"track_err_rms_{name}"] = float(rms[i])
+    row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
+    return row
+
+
+def _trace(exp: Experiment, which: str, log, Qd: np.ndarray, theta) -> dict[str, np.ndarray]:
+    return {f"{which}_q_system": log.q.copy(), f"{which}_q_forward": Qd.copy(),
+            f"{which}_u_fb": log.u_fb.copy()}
+
+
+def _seed_summary(exp: Experiment, seed: int, rows, diverged: bool, reason: str | None,
+                  wall: float, steps: int) -> dict[str, Any]:
+    fb = [r["fb_abs_mean_error"] for r in rows]
+    fb0 = fb[0] if fb else None
+    converged = None
+    if fb:
+        threshold = 0.05 * fb0
+        above = [i for i, f in enumerate(fb) if f >= threshold]
+        last_above = above[-1] if above else -1
+        if last_above < len(fb) - 1:
+            converged = rows[last_above + 1]["cycle"]
+    out = {"seed": seed, "cycles": len(rows), "fb_initial": fb0, "fb_final": fb[-1] if fb else None,
+           "fb_ratio": (fb[-1] / fb0) if fb and fb0 else None, "converged_cycle": converged,
+           "wall_s": round(wall, 4), "steps_per_s": round(steps / wall, 1) if wall > 0 else None,
+           "diverged": diverged}
+    if reason:
+        out["diverged_reason"] = f"seed {seed}, cycle {len(rows) + 1}: {reason}"
+    return out
+
+
+def stabilization_errors(exp: Experiment, traces: dict[str, np.ndarray]) -> dict[str, float]:
+    """Max deviation of each stabilized quantity from its target over the last cycle, in [rad],
+    for the system (``<joint>_system``) and the forward trajectory (``<joint>_forward``)."""
+    out = {}
+    for i, name in enumerate(exp.joints):
+        if not exp.law.stabilizing[i]:
+            continue
+        for kind in ("system", "forward"):
+            y = exp.law.quantity(traces[f"last_q_{kind}"])[:, i]
+            out[f"{name}_{kind}"] = float(np.abs(y - exp.law.targets[i]).max())
+    return out
+
+
+__all__ = ["Experiment", "SeedResult", "build_experiment", "load_experiment", "run_seed",
+           "validate", "FeltoolError"]

@@ -1,0 +1,137 @@
+r"""Feedback error learning of RMP parameters (thesis §3.1, eq. 3.4-3.6).
+
+The feedforward torque is the known inverse model applied to the desired trajectory,
+:math:`u_{ff}^k = f(q_d^k, \dot q_d^k, \ddot q_d^k)` (RNEA, eq. 3.1), and the desired trajectory
+comes from the RMPs with parameters :math:`\theta`. The learner moves :math:`\theta` along
+
+.. math::
+
+    \theta_{h+1} = \theta_h + \alpha \odot \sum_{k=1}^{N} J_k^\top e_k, \qquad
+    J_k = \frac{\partial u_{ff}^k}{\partial\theta}
+        = \frac{\partial f}{\partial q}\frac{\partial q_d^k}{\partial\theta}
+        + \frac{\partial f}{\partial \dot q}\frac{\partial \dot q_d^k}{\partial\theta}
+        + M(q_d^k)\frac{\partial \ddot q_d^k}{\partial\theta}
+    \qquad \text{(eq. 3.6)}
+
+where :math:`e_k` is the error signal: the stabilizing feedback (fully actuated robots) or all
+feedback (underactuated robots), zero elsewhere. ``sensitivity: exact`` chains Pinocchio's RNEA
+derivatives with the RMP's exact sensitivities; ``finite_difference`` differentiates the whole
+chain numerically as the thesis did. ``update: gauss_newton`` replaces the gradient step on the
+weights by the Levenberg-Marquardt step
+:math:`\Delta w = \alpha_w (J_w^\top J_w + \lambda\,\overline{\mathrm{diag}}\,I)^{-1} J_w^\top e`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from feltool.dynamics import Dynamics
+from feltool.rmp import PrimitiveSet
+
+
+@dataclass
+class FeedbackErrorLearner:
+    """The learner of eq. 3.6.
+
+    Attributes:
+        primitives: The forward trajectory generator.
+        learned: Indices into ``theta`` that are learned (the learned joints' weights and goals).
+        is_goal: For each learned index, whether it is a goal (else a weight).
+        error_mask: ``(nv,)`` 1 where a joint's feedback is part of the error signal.
+        rates: Learning rate per learned index.
+        update: ``gradient`` or ``gauss_newton``.
+        damping: Levenberg-Marquardt damping relative to the mean diagonal of J^T J.
+        sensitivity: ``exact`` or ``finite_difference``.
+        fd_epsilon: Relative finite-difference step.
+    """
+
+    primitives: PrimitiveSet
+    learned: np.ndarray
+    is_goal: np.ndarray
+    error_mask: np.ndarray
+    rates: np.ndarray
+    update: str = "gradient"
+    damping: float = 1e-2
+    sensitivity: str = "exact"
+    fd_epsilon: float = 1e-6
+
+    def __post_init__(self):
+        # Learned blocks: (velocity index, columns into the learned vector, primitive, row slice).
+        self._blocks = []
+        pos = {int(p): c for c, p in enumerate(self.learned)}
+        for i, prim in self.primitives.primitives.items():
+            sl = self.primitives.slices[i]
+            cols = [pos[p] for p in range(sl.start, sl.stop) if p in pos]
+            if cols:
+                self._blocks.append((i, np.array(cols), prim, np.arange(sl.start, sl.stop)))
+
+    @property
+    def n_learned(self) -> int:
+        return len(self.learned)
+
+    def jacobian(self, dynamics: Dynamics, theta: np.ndarray, Qd: np.ndarray, Vd: np.ndarray,
+                 Ad: np.ndarray) -> np.ndarray:
+        """:math:`J_k = \\partial u_{ff}^k / \\partial\\theta_{learned}`, shape ``(n, nv, P)``."""
+        n, nv = Qd.shape
+        J = np.zeros((n, nv, self.n_learned))
+        if self.n_learned == 0:
+            return J
+        if self.sensitivity == "finite_difference":
+            return self._jacobian_fd(dynamics, theta)
+        Dq, Dv, M = (np.empty((n, nv, nv)) for _ in range(3))
+        for k in range(n):
+            Dq[k], Dv[k], M[k] = dynamics.inverse_derivatives(Qd[k], Vd[k], Ad[k])
+        for i, cols, prim, rows in self._blocks:
+            sel = np.isin(rows, self.learned)
+            Xq, Xv, Xa = prim.Xq[:, sel], prim.Xv[:, sel], prim.Xa[:, sel]
+            J[:, :, cols] = (Dq[:, :, i, None] * Xq[:, None, :] + Dv[:, :, i, None] * Xv[:, None, :]
+                             + M[:, :, i, None] * Xa[:, None, :])
+        return J
+
+    def _jacobian_fd(self, dynamics: Dynamics, theta: np.ndarray) -> np.ndarray:
+        """Central differences of the whole chain RMP -> RNEA, one parameter at a time."""
+        n, nv = self.primitives.n_steps, self.primitives.nv
+        J = np.zeros((n, nv, self.n_learned))
+        for c, p in enumerate(self.learned):
+            eps = self.fd_epsilon * max(1.0, abs(theta[p]))
+            taus = []
+            for sign in (1.0, -1.0):
+                th = theta.copy()
+                th[p] += sign * eps
+                Q, V, A = self.primitives.desired(th)
+                taus.append(feedforward(dynamics, Q, V, A))
+            J[:, :, c] = (taus[0] - taus[1]) / (2.0 * eps)
+        return J
+
+    def error(self, U_fb: np.ndarray) -> np.ndarray:
+        """Error signal :math:`e_k` for feedback samples ``(n, nv)``."""
+        return U_fb * self.error_mask
+
+    def gradient(self, J: np.ndarray, U_fb: np.ndarray) -> np.ndarray:
+        """:math:`\\sum_k J_k^\\top e_k` over the learned parameters."""
+        return np.einsum("kr,krp->p", self.error(U_fb), J)
+
+    def step(self, theta: np.ndarray, J: np.ndarray, U_fb: np.ndarray) -> np.ndarray:
+        """Parameters after one update from a cycle's (or a step's) Jacobian and feedback."""
+        theta = theta.copy()
+        if self.n_learned == 0:
+            return theta
+        grad = self.gradient(J, U_fb)
+        delta = self.rates * grad
+        if self.update == "gauss_newton":
+            w = ~self.is_goal
+            rows = self.error_mask > 0
+            Jw = J[:, rows][:, :, w].reshape(-1, int(w.sum()))
+            e = self.error(U_fb)[:, rows].reshape(-1)
+            H = Jw.T @ Jw
+            lam = self.damping * float(np.mean(np.diag(H))) + 1e-300
+            delta[w] = self.rates[w] * np.linalg.solve(H + lam * np.eye(H.shape[0]), Jw.T @ e)
+        theta[self.learned] += delta
+        return theta
+
+
+def feedforward(dynamics: Dynamics, Qd: np.ndarray, Vd: np.ndarray, Ad: np.ndarray) -> np.ndarray:
+    """:math:`u_{ff}^k` = RNEA along a desired trajectory, ``(n, nv)`` in [N m] (eq. 3.1)."""
+    return np.array([dynamics.inverse(q, v, a) for q, v, a in zip(Qd, Vd, Ad)])

@@ -1,0 +1,236 @@
+"""Loading robots: bundled names, URDF files and ``example-robot-data:NAME``.
+
+This module is the one place that builds Pinocchio models. A :class:`Robot` couples the model with
+where it came from and the joint-name bookkeeping the rest of feltool needs.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from feltool.errors import RobotError
+
+ERD_PREFIX = "example-robot-data:"
+
+
+def data_dir(kind: str) -> Path:
+    """Directory of bundled ``robots`` or ``configs``: inside the installed wheel, or the checkout."""
+    packaged = Path(__file__).parent / "_data" / kind
+    if packaged.is_dir():
+        return packaged
+    return Path(__file__).resolve().parent.parent / kind
+
+
+def bundled_robots() -> list[str]:
+    """Names of the robots shipped with feltool."""
+    return sorted(p.stem for p in data_dir("robots").glob("*.urdf"))
+
+
+def erd_robots() -> list[str]:
+    """Names ``example-robot-data`` knows (not all of them load; see :func:`load_robot`)."""
+    try:
+        import example_robot_data as erd
+    except ImportError:  # pragma: no cover - a declared dependency
+        return []
+    return sorted(erd.robots_loader.ROBOTS)
+
+
+@dataclass
+class Robot:
+    """A rigid-body model with its origin.
+
+    Attributes:
+        name: Display name (bundled name, URDF stem or example-robot-data name).
+        model: The Pinocchio model (the known model of the robot).
+        source: What the user wrote to get it (name, path or ``example-robot-data:NAME``).
+        urdf_path: The URDF file, when there is one.
+        package_dirs: Directories used to resolve ``package://`` mesh paths.
+        visual_model: Pinocchio geometry model of the visuals, built lazily for viewers.
+    """
+
+    name: str
+    model: pin.Model
+    source: str
+    urdf_path: Path | None = None
+    package_dirs: list[str] = field(default_factory=list)
+    _visual_model: pin.GeometryModel | None = None
+
+    @property
+    def joint_names(self) -> list[str]:
+        """Names of the moving joints, in Pinocchio's order (the universe joint left out)."""
+        return list(self.model.names)[1:]
+
+    def joint_id(self, name: str) -> int:
+        """Pinocchio joint id of a joint, with an error listing the joints the robot has."""
+        if not self.model.existJointName(name):
+            raise RobotError(
+                f"robot '{self.name}' has no joint '{name}'; its joints are: "
+                + ", ".join(self.joint_names)
+            )
+        return int(self.model.getJointId(name))
+
+    def v_index(self, name: str) -> int:
+        """Index of a one-degree-of-freedom joint in the velocity (and torque) vector."""
+        jid = self.joint_id(name)
+        if self.model.joints[jid].nv != 1:
+            raise RobotError(f"joint '{name}' of robot '{self.name}' has "
+                             f"{self.model.joints[jid].nv} degrees of freedom; feltool roles need "
+                             "one (revolute or prismatic)")
+        return int(self.model.joints[jid].idx_v)
+
+    def q_index(self, name: str) -> int:
+        """Index of a one-degree-of-freedom joint in the configuration vector."""
+        self.v_index(name)
+        return int(self.model.joints[self.joint_id(name)].idx_q)
+
+    def set_gravity(self, gravity: float | list[float] | np.ndarray) -> None:
+        """Set gravity: a magnitude in [m/s^2] along the world's -z, or a 3-vector in [m/s^2].
+
+        This is the one place feltool changes gravity (Pinocchio's default is 9.81; the thesis
+        uses 9.8).
+        """
+        g = np.asarray(gravity, dtype=float)
+        vec = np.array([0.0, 0.0, -float(g)]) if g.ndim == 0 else g.reshape(3)
+        self.model.gravity = pin.Motion(vec, np.zeros(3))
+
+    @property
+    def total_mass(self) -> float:
+        """Sum of the link masses in [kg]."""
+        return float(sum(inertia.mass for inertia in self.model.inertias))
+
+    @property
+    def visual_model(self) -> pin.GeometryModel:
+        if self._visual_model is None:
+            if self.urdf_path is None:
+                raise RobotError(f"robot '{self.name}' has no URDF to take visuals from")
+            self._visual_model = pin.buildGeomFromUrdf(
+                self.model, str(self.urdf_path), pin.GeometryType.VISUAL, self.package_dirs
+            )
+        return self._visual_model
+
+
+def load_robot(spec: str, base_dir: Path | None = None) -> Robot:
+    """Load a robot by bundled name, URDF path, or ``example-robot-data:NAME``.
+
+    Args:
+        spec: ``two_link_arm`` | ``path/to/robot.urdf`` | ``example-robot-data:ur5``.
+        base_dir: Directory that relative URDF paths are resolved against (the config's).
+
+    Raises:
+        RobotError: naming the file and element when the robot cannot be loaded.
+    """
+    if spec.startswith(ERD_PREFIX):
+        return _load_erd(spec[len(ERD_PREFIX):], spec)
+    if spec.endswith(".urdf") or "/" in spec or "\\" in spec:
+        path = Path(spec).expanduser()
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+        return load_urdf(path, source=spec)
+    bundled = data_dir("robots") / f"{spec}.urdf"
+    if bundled.is_file():
+        return load_urdf(bundled, source=spec, name=spec)
+    raise RobotError(
+        f"unknown robot '{spec}': not a bundled robot ({', '.join(bundled_robots())}), not a "
+        f"path to a .urdf file, and not '{ERD_PREFIX}NAME'"
+    )
+
+
+def load_urdf(path: Path, source: str | None = None, name: str | None = None,
+              package_dirs: list[str] | None = None) -> Robot:
+    """Load a URDF file, checking it first so that problems name the file and the element."""
+    path = Path(path)
+    if not path.is_file():
+        raise RobotError(f"URDF file not found: {path}")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RobotError(f"{path}: cannot read URDF ({exc})") from None
+    _check_urdf_xml(text, str(path))
+    dirs = [str(path.parent)] + list(package_dirs or [])
+    try:
+        model = pin.buildModelFromXML(text)
+    except Exception as exc:  # Pinocchio raises ValueError/RuntimeError with its own text
+        raise RobotError(f"{path}: Pinocchio could not build a model: {exc}") from None
+    return Robot(name=name or path.stem, model=model, source=source or str(path),
+                 urdf_path=path, package_dirs=dirs)
+
+
+def _check_urdf_xml(text: str, where: str) -> None:
+    """Structural checks Pinocchio reports badly or not at all."""
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        line, col = exc.position
+        raise RobotError(f"{where}:{line}:{col}: URDF is not well-formed XML ({exc.msg if hasattr(exc, 'msg') else exc})") from None
+    if root.tag != "robot":
+        raise RobotError(f"{where}: root element is <{root.tag}>, a URDF needs <robot>")
+    links = {link.get("name"): link for link in root.findall("link")}
+    if not links:
+        raise RobotError(f"{where}: <robot> has no <link> elements")
+    children: dict[str, list[tuple[str, str]]] = {}
+    for joint in root.findall("joint"):
+        jname = joint.get("name")
+        for tag in ("parent", "child"):
+            el = joint.find(tag)
+            if el is None or el.get("link") not in links:
+                ref = None if el is None else el.get("link")
+                raise RobotError(f"{where}: <joint name=\"{jname}\"> refers to {tag} link "
+                                 f"'{ref}', which is not a <link> of the URDF")
+        children.setdefault(joint.find("parent").get("link"), []).append(
+            (joint.find("child").get("link"), joint.get("type", "")))
+
+    def link_mass(name: str) -> float:
+        inertial = links[name].find("inertial")
+        mass = None if inertial is None else inertial.find("mass")
+        try:
+            return 0.0 if mass is None else float(mass.get("value", "0"))
+        except ValueError:
+            raise RobotError(f"{where}: <link name=\"{name}\"> has a mass that is not a "
+                             f"number: '{mass.get('value')}'") from None
+
+    def body_mass(name: str) -> float:
+        """Mass of a link and everything welded to it by fixed joints."""
+        return link_mass(name) + sum(body_mass(c) for c, t in children.get(name, []) if t == "fixed")
+
+    for joint in root.findall("joint"):
+        if joint.get("type") in ("fixed", None):
+            continue
+        child = joint.find("child").get("link")
+        if body_mass(child) <= 0.0 and not _subtree_has_mass(child, children, link_mass):
+            raise RobotError(
+                f"{where}: <link name=\"{child}\"> (moved by <joint name=\"{joint.get('name')}\">) "
+                "has no <inertial> mass, and nothing it carries has any: its joint would have "
+                "no inertia and forward dynamics would be singular"
+            )
+
+
+def _subtree_has_mass(name, children, link_mass) -> bool:
+    return any(link_mass(c) > 0 or _subtree_has_mass(c, children, link_mass)
+               for c, _ in children.get(name, []))
+
+
+def _load_erd(name: str, source: str) -> Robot:
+    try:
+        import example_robot_data as erd
+    except ImportError:  # pragma: no cover - a declared dependency
+        raise RobotError("example-robot-data robots need the package "
+                         "'example-robot-data-loaders' (pip install example-robot-data-loaders)") from None
+    known = erd_robots()
+    if name not in known:
+        raise RobotError(f"unknown example-robot-data robot '{name}'; known names: "
+                         + ", ".join(known))
+    try:
+        loaded = erd.robots_loader.ROBOTS[name]()
+    except Exception as exc:
+        raise RobotError(f"example-robot-data robot '{name}' failed to load: {exc}") from None
+    wrapper = loaded.robot
+    urdf = Path(loaded.df_path).resolve() if getattr(loaded, "df_path", None) else None
+    robot = Robot(name=name, model=wrapper.model, source=source, urdf_path=urdf,
+                  package_dirs=[str(urdf.parent)] if urdf else [])
+    robot._visual_model = wrapper.visual_model
+    return robot
