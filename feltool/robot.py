@@ -234,3 +234,32 @@ def _load_erd(name: str, source: str) -> Robot:
                   package_dirs=[str(urdf.parent)] if urdf else [])
     robot._visual_model = wrapper.visual_model
     return robot
+
+
+def describe(robot: Robot) -> dict:
+    """Joints (name, type, axis, limits), bodies with masses and total mass, as plain data."""
+    model = robot.model
+    joints = []
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        axis = None
+        try:
+            axis = [round(float(x), 6) for x in joint.extract().axis]
+        except AttributeError:
+            short = joint.shortname()
+            for letter, vec in (("X", [1, 0, 0]), ("Y", [0, 1, 0]), ("Z", [0, 0, 1])):
+                if short.endswith(letter):
+                    axis = vec
+        lo, hi = joint.idx_q, joint.idx_q + joint.nq
+        joints.append({
+            "name": model.names[jid], "type": joint.shortname().removeprefix("JointModel"),
+            "axis": axis, "nq": joint.nq, "nv": joint.nv,
+            "lower": float(model.lowerPositionLimit[lo:hi].min()) if joint.nq else 0.0,
+            "upper": float(model.upperPositionLimit[lo:hi].max()) if joint.nq else 0.0,
+            "effort": float(model.effortLimit[joint.idx_v]) if joint.nv else 0.0,
+            "parent": model.names[model.parents[jid]],
+        })
+    bodies = [{"name": model.names[jid], "mass": float(model.inertias[jid].mass)}
+              for jid in range(1, model.njoints)]
+    return {"name": robot.name, "source": robot.source, "joints": joints, "bodies": bodies,
+            "total_mass": robot.total_mass}
