@@ -23,7 +23,7 @@ from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.fel import FeedbackErrorLearner, feedforward
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
-from feltool.simulate import ClosedLoop
+from feltool.simulate import ClosedLoop, CycleLog
 
 
 @dataclass
@@ -342,10 +342,10 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     diverged, reason = False, None
     t0 = time.perf_counter()
     steps = 0
-    err_names = exp.error_joints
+    rmp_states = _limit_cycle_states(exp, theta)
     for cycle in range(1, cycles + 1):
         if cfg.learning.step == "per_step":
-            log, Qd, Vd, theta_next = _per_step_cycle(exp, theta, q, v)
+            log, Qd, Vd, theta_next = _per_step_cycle(exp, theta, q, v, rmp_states)
         else:
             Qd, Vd, Ad = exp.primitives.desired(theta)
             R, Rd = exp.law.references(Qd, Vd)
@@ -381,16 +381,20 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     return SeedResult(seed, rows, summary, params, traces)
 
 
-def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v):
-    """One cycle with an update after every step; the RMP states run on continuously."""
+def _limit_cycle_states(exp: Experiment, theta: np.ndarray) -> dict[int, tuple]:
+    """Each RMP's state (q, qdot) and sensitivity at phase 0 of its limit cycle."""
+    return {i: (np.array([p.Xq[0] @ theta[exp.primitives.slices[i]],
+                          p.Xv[0] @ theta[exp.primitives.slices[i]]]),
+                np.stack([p.Xq[0], p.Xv[0]]))
+            for i, p in exp.primitives.primitives.items()}
+
+
+def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, tuple]):
+    """One cycle with an update after every step; the RMP states (updated in place in
+    ``states``) run on continuously, their sensitivities propagated alongside."""
     prims, n, nv = exp.primitives, exp.primitives.n_steps, exp.primitives.nv
     learner, law, dyn = exp.learner, exp.law, exp.dynamics
     theta = theta.copy()
-    if not hasattr(exp, "_rmp_state"):
-        Qd, Vd, _ = prims.desired(theta)
-        exp._rmp_state = {i: (np.array([Qd[0, i], Vd[0, i]]), _periodic_S(p, i, prims))
-                          for i, p in prims.primitives.items()}
-    states = exp._rmp_state
     Q, V, U, Qd, Vd = (np.empty((n, nv)) for _ in range(5))
     for k in range(n):
         qd, vd, ad = np.empty(nv), np.empty(nv), np.empty(nv)
@@ -417,12 +421,7 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v):
             th = theta[prims.slices[i]]
             states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
         theta = learner.step(theta, J, u_fb[None])
-    from feltool.simulate import CycleLog
     return CycleLog(Q, V, U, q, v), Qd, Vd, theta
-
-
-def _periodic_S(prim: RhythmicPrimitive, i: int, prims: PrimitiveSet) -> np.ndarray:
-    return np.stack([prim.Xq[0], prim.Xv[0]])
 
 
 def _divergence(exp: Experiment, log, Qd: np.ndarray) -> str | None:

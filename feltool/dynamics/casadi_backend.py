@@ -46,7 +46,10 @@ from feltool.errors import InputError
 _REVOLUTE_ALIGNED = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
 _PRISMATIC_ALIGNED = {"JointModelPX": 0, "JointModelPY": 1, "JointModelPZ": 2}
 _REVOLUTE_UNBOUNDED = {"JointModelRUBX": 0, "JointModelRUBY": 1, "JointModelRUBZ": 2}
-_UNALIGNED = {"JointModelRevoluteUnaligned": "revolute", "JointModelPrismaticUnaligned": "prismatic"}
+_UNALIGNED = {
+    "JointModelRevoluteUnaligned": "revolute",
+    "JointModelPrismaticUnaligned": "prismatic",
+}
 
 
 # --------------------------------------------------------------------------------------------
@@ -136,9 +139,7 @@ def _skew(p):
 
 def _dm(array: np.ndarray) -> ca.DM:
     """A constant matrix with its exact zeros dropped, so that SX products skip them."""
-    dm = ca.DM(np.asarray(array, dtype=float))
-    dm.sparsify()
-    return dm
+    return ca.sparsify(ca.DM(np.asarray(array, dtype=float)))
 
 
 def _joint_rotation(joint: _Joint, c, s):
@@ -220,7 +221,7 @@ def _gravity_acceleration(model: pin.Model) -> ca.DM:
     return _dm(-g)
 
 
-def _check_vector_dims(model: pin.Model) -> None:
+def _check_has_joints(model: pin.Model) -> None:
     if model.njoints < 2:
         raise InputError("the model has no joints: nothing to build dynamics for")
 
@@ -270,7 +271,8 @@ def _aba_expr(model: pin.Model, joints: list[_Joint], q, v, tau):
     ``I^A_i = I_i``, ``p^A_i = v_i x* (I_i v_i)``. Pass 2 (leaves to root): ``U = I^A S``,
     ``D = S^T U + armature``, ``u = tau_i - S^T p^A``; the parent receives
     ``X^T (I^A - U U^T / D) X`` and ``X^T (p^A + I^a c + U u / D)``. Pass 3 (root to leaves):
-    ``a'_i = X_i a_p + c_i`` (``a_0 = -g``), ``qdd_i = (u - U^T a'_i) / D``, ``a_i = a'_i + S qdd_i``.
+    ``a'_i = X_i a_p + c_i`` (``a_0 = -g``), ``qdd_i = (u - U^T a'_i) / D``,
+    ``a_i = a'_i + S qdd_i``.
     Every joint here has one degree of freedom, so ``D`` is a scalar and no matrix is inverted.
     """
     nj = model.njoints
@@ -343,7 +345,7 @@ def symbolic_rnea(model: pin.Model) -> ca.Function:
     [m/s], ``a`` (nv) [rad/s^2] or [m/s^2]; ``tau`` (nv) [N m] or [N]:
     ``tau = M(q) a + C(q, v) v + g(q)`` computed by the recursive Newton-Euler algorithm.
     """
-    _check_vector_dims(model)
+    _check_has_joints(model)
     joints = _describe_joints(model)
     q, v, a = _symbols(model, "a")
     tau = _rnea_expr(model, joints, q, v, a)
@@ -361,7 +363,7 @@ def symbolic_aba(model: pin.Model) -> ca.Function:
     choices, no dense ``M^-1``), and it follows Pinocchio's own ``aba`` step by step, so the
     numbers agree to rounding error.
     """
-    _check_vector_dims(model)
+    _check_has_joints(model)
     joints = _describe_joints(model)
     q, v, tau = _symbols(model, "tau")
     acc = _aba_expr(model, joints, q, v, tau)
@@ -369,14 +371,14 @@ def symbolic_aba(model: pin.Model) -> ca.Function:
 
 
 def symbolic_rnea_derivatives(model: pin.Model) -> ca.Function:
-    """``(q, v, a) -> (dtau_dq, dtau_dv, M)``, each nv x nv, by CasADi's algorithmic differentiation.
+    """``(q, v, a) -> (dtau_dq, dtau_dv, M)``, each nv x nv, by CasADi's automatic differentiation.
 
     ``dtau_dq`` is taken in the tangent space (as Pinocchio's ``computeRNEADerivatives``):
     ``d tau(integrate(q, delta)) / d delta`` at ``delta = 0``, which equals ``d tau / d q`` for
     revolute and prismatic joints. ``M = d tau / d a`` is the joint-space mass matrix [kg m^2]
     (plus the armature on its diagonal).
     """
-    _check_vector_dims(model)
+    _check_has_joints(model)
     joints = _describe_joints(model)
     q, v, a = _symbols(model, "a")
     tau = _rnea_expr(model, joints, q, v, a)

@@ -1,0 +1,99 @@
+"""Rhythmic movement primitives: fit (eq. 2.4), integration, limit cycle and sensitivities."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from feltool.errors import InputError
+from feltool.rmp import RhythmicPrimitive, sine_demo
+
+
+def fitted_sine(n_basis=10, dt=0.01, period=1.0):
+    prim = RhythmicPrimitive(n_basis, period, dt)
+    t = np.linspace(0, period, 1000, endpoint=False)
+    q, v, a = sine_demo(0.0, 1.0, period, 0.0, t)
+    return prim, prim.fit(q, v, a, 2 * np.pi * t / period)
+
+
+def test_fit_reproduces_sine_after_first_cycle():
+    """Thesis Fig. 2.1: fitted to sin(2 pi t) with 10 basis functions, the RMP integrated from
+    rest matches it to < 1e-3 rad after the first cycle."""
+    prim, theta = fitted_sine()
+    n = prim.n_steps
+    out = prim.rollout(theta, np.array([0.0, 0.0]), 3 * n)
+    t = np.arange(3 * n) * prim.dt
+    q, v, _ = sine_demo(0.0, 1.0, 1.0, 0.0, t)
+    assert np.abs(out.q[n:] - q[n:]).max() < 1e-3
+    assert np.abs(out.v[n:] - v[n:]).max() < 0.05  # [rad/s], of an amplitude of 6.3
+    # Before settling (first steps, from rest) the RMP is not on the sine: the check can fail.
+    assert np.abs(out.q[:n] - q[:n]).max() > 1e-2
+
+
+def test_limit_cycle_is_what_integration_settles_on():
+    prim, theta = fitted_sine()
+    n = prim.n_steps
+    cyc = prim.periodic(theta)
+    out = prim.rollout(theta, np.array([0.3, -1.0]), 4 * n)
+    np.testing.assert_allclose(out.q[3 * n:], cyc.q, atol=1e-9)
+    np.testing.assert_allclose(out.v[3 * n:], cyc.v, atol=1e-8)
+    np.testing.assert_allclose(out.a[3 * n:], cyc.a, atol=1e-6)
+
+
+def test_goal_is_the_mean_and_tau_gives_the_period():
+    prim = RhythmicPrimitive(10, 2.0, 0.02)
+    assert np.isclose(prim.tau, 2.0 / (2 * np.pi))
+    t = np.linspace(0, 2.0, 500, endpoint=False)
+    q, v, a = sine_demo(0.7, 0.2, 2.0, 0.4, t)
+    theta = prim.fit(q, v, a, 2 * np.pi * t / 2.0)
+    assert np.isclose(theta[-1], 0.7)
+    cyc = prim.periodic(theta)
+    np.testing.assert_allclose(cyc.q, sine_demo(0.7, 0.2, 2.0, 0.4, np.arange(100) * 0.02)[0],
+                               atol=2e-4)
+
+
+def test_periodic_sensitivity_matches_finite_differences(rng):
+    prim = RhythmicPrimitive(8, 1.0, 0.01)
+    theta = rng.normal(0, 20, prim.n_params)
+    Xq, Xv, Xa = prim.periodic_sensitivity()
+    eps = 1e-4
+    for p in range(prim.n_params):
+        e = np.zeros(prim.n_params)
+        e[p] = eps
+        hi, lo = prim.periodic(theta + e), prim.periodic(theta - e)
+        np.testing.assert_allclose((hi.q - lo.q) / (2 * eps), Xq[:, p], atol=1e-8)
+        np.testing.assert_allclose((hi.v - lo.v) / (2 * eps), Xv[:, p], atol=1e-7)
+        np.testing.assert_allclose((hi.a - lo.a) / (2 * eps), Xa[:, p], atol=1e-5)
+
+
+def test_step_sensitivity_matches_finite_differences(rng):
+    """The sensitivity recursion S' = Phi S + Gamma_k equals finite differences of a rollout."""
+    prim = RhythmicPrimitive(6, 0.5, 0.01)
+    theta = rng.normal(0, 10, prim.n_params)
+    x0 = np.array([0.1, 0.2])
+
+    def roll(th):
+        x, S = x0.copy(), np.zeros((2, prim.n_params))
+        for k in range(73):
+            x, S = prim.step(x, th, k), prim.step_sensitivity(S, k)
+        return x, S
+
+    _, S = roll(theta)
+    eps = 1e-5
+    for p in range(prim.n_params):
+        e = np.zeros(prim.n_params)
+        e[p] = eps
+        fd = (roll(theta + e)[0] - roll(theta - e)[0]) / (2 * eps)
+        np.testing.assert_allclose(fd, S[:, p], atol=1e-8)
+
+
+def test_basis_is_von_mises():
+    prim = RhythmicPrimitive(4, 1.0, 0.1, width=2.0)
+    psi = prim.basis(0.3)
+    np.testing.assert_allclose(psi, np.exp(2.0 * (np.cos(0.3 - prim.centers) - 1.0)))
+    assert prim.basis(prim.centers[2])[2] == pytest.approx(1.0)
+
+
+def test_period_must_be_whole_number_of_steps():
+    with pytest.raises(InputError, match="whole number"):
+        RhythmicPrimitive(10, 1.0, 0.03)
