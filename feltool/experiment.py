@@ -338,7 +338,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     n = exp.primitives.n_steps
     Qd, Vd, Ad = exp.primitives.desired(theta)
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
-    rows, history, traces = [], [theta[exp.learner.learned].copy()], {}
+    rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
     diverged, reason = False, None
     t0 = time.perf_counter()
     steps = 0
@@ -349,7 +349,11 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         else:
             Qd, Vd, Ad = exp.primitives.desired(theta)
             R, Rd = exp.law.references(Qd, Vd)
-            u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
+            derivs = None
+            if exp.learner.n_learned and cfg.learning.sensitivity == "exact":
+                u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+            else:
+                u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
             log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
         steps += n
         reason = _divergence(exp, log, Qd)
@@ -357,19 +361,21 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             diverged = True
             break
         if cfg.learning.step == "per_cycle":
-            J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad)
+            J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
             theta_next = exp.learner.step(theta, J, log.u_fb)
         row = _metrics(exp, seed, cycle, log, Qd, theta)
         rows.append(row)
         if cycle == 1:
-            traces.update(_trace(exp, "first", log, Qd, theta))
-        traces.update(_trace(exp, "last", log, Qd, theta))
+            traces.update(_trace("first", log, Qd))
+        last = (log, Qd)
         theta = theta_next
         history.append(theta[exp.learner.learned].copy())
         q, v = log.q_end, log.v_end
         if progress is not None:
             progress(cycle, row["fb_abs_mean_error"])
     wall = time.perf_counter() - t0
+    if rows:
+        traces.update(_trace("last", *last))
     summary = _seed_summary(exp, seed, rows, diverged, reason, wall, steps)
     params = exp.split_parameters(theta)
     hist = np.array(history)
@@ -456,9 +462,8 @@ def _metrics(exp: Experiment, seed: int, cycle: int, log, Qd: np.ndarray,
     return row
 
 
-def _trace(exp: Experiment, which: str, log, Qd: np.ndarray, theta) -> dict[str, np.ndarray]:
-    return {f"{which}_q_system": log.q.copy(), f"{which}_q_forward": Qd.copy(),
-            f"{which}_u_fb": log.u_fb.copy()}
+def _trace(which: str, log: CycleLog, Qd: np.ndarray) -> dict[str, np.ndarray]:
+    return {f"{which}_q_system": log.q, f"{which}_q_forward": Qd, f"{which}_u_fb": log.u_fb}
 
 
 def _seed_summary(exp: Experiment, seed: int, rows, diverged: bool, reason: str | None,

@@ -72,17 +72,21 @@ class FeedbackErrorLearner:
         return len(self.learned)
 
     def jacobian(self, dynamics: Dynamics, theta: np.ndarray, Qd: np.ndarray, Vd: np.ndarray,
-                 Ad: np.ndarray) -> np.ndarray:
-        """:math:`J_k = \\partial u_{ff}^k / \\partial\\theta_{learned}`, shape ``(n, nv, P)``."""
+                 Ad: np.ndarray, derivatives: tuple | None = None) -> np.ndarray:
+        """:math:`J_k = \\partial u_{ff}^k / \\partial\\theta_{learned}`, shape ``(n, nv, P)``.
+
+        ``derivatives``: ``(Dq, Dv, M)`` of the inverse model along ``Qd, Vd, Ad`` if already
+        computed (see :func:`feedforward_and_derivatives`).
+        """
         n, nv = Qd.shape
         J = np.zeros((n, nv, self.n_learned))
         if self.n_learned == 0:
             return J
         if self.sensitivity == "finite_difference":
             return self._jacobian_fd(dynamics, theta)
-        Dq, Dv, M = (np.empty((n, nv, nv)) for _ in range(3))
-        for k in range(n):
-            Dq[k], Dv[k], M[k] = dynamics.inverse_derivatives(Qd[k], Vd[k], Ad[k])
+        if derivatives is None:
+            derivatives = dynamics.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
+        Dq, Dv, M = derivatives
         for i, cols, prim, rows in self._blocks:
             sel = np.isin(rows, self.learned)
             Xq, Xv, Xa = prim.Xq[:, sel], prim.Xv[:, sel], prim.Xa[:, sel]
@@ -134,4 +138,4 @@ class FeedbackErrorLearner:
 
 def feedforward(dynamics: Dynamics, Qd: np.ndarray, Vd: np.ndarray, Ad: np.ndarray) -> np.ndarray:
     """:math:`u_{ff}^k` = RNEA along a desired trajectory, ``(n, nv)`` in [N m] (eq. 3.1)."""
-    return np.array([dynamics.inverse(q, v, a) for q, v, a in zip(Qd, Vd, Ad)])
+    return dynamics.inverse_batch(Qd, Vd, Ad)

@@ -77,16 +77,46 @@ class ClosedLoop:
 
     def run_cycle(self, q: np.ndarray, v: np.ndarray, R: np.ndarray, Rd: np.ndarray,
                   u_ff: np.ndarray) -> CycleLog:
-        """Run n steps with references ``R, Rd`` and feedforward ``u_ff`` (each ``(n, nv)``)."""
+        """Run n steps with references ``R, Rd`` and feedforward ``u_ff`` (each ``(n, nv)``).
+
+        The feedback is affine in the state, :math:`u_{fb}^k = b^k - K x` with
+        :math:`x = (q, \\dot q)`, :math:`b^k = K_P r^k + K_D \\dot r^k` and
+        :math:`K = [K_P C,\\ K_D C]`, so the loop computes only :math:`u^k = S(u_{ff}^k + b^k) - S K x`
+        and the logged feedback is recovered afterwards from the logged states.
+        """
+        if not getattr(self.dynamics, "euclidean", False):
+            return self._run_cycle_manifold(q, v, R, Rd, u_ff)
+        n, nv = len(R), v.shape[0]
+        law, S = self.law, self.actuated
+        K = np.hstack([law.kp[:, None] * law.C, law.kd[:, None] * law.C])
+        B = law.kp * R + law.kd * Rd
+        F = S * (u_ff + B)
+        SK = S[:, None] * K
+        X = np.empty((n, 2 * nv))
+        x = np.concatenate([q, v])
+        qx, vx = x[:nv], x[nv:]  # views into x
+        forward, h, substeps = self.dynamics.forward, self.dt / self.substeps, self.substeps
+        semi = self.integrator == "semi_implicit_euler"
+        for k in range(n):
+            X[k] = x
+            tau = F[k] - SK @ x
+            for _ in range(substeps):
+                a = forward(qx, vx, tau)
+                if semi:
+                    vx += h * a
+                    qx += h * vx
+                else:
+                    qx += h * vx
+                    vx += h * a
+        U = B - X @ K.T
+        return CycleLog(X[:, :nv], X[:, nv:], U, x[:nv].copy(), x[nv:].copy())
+
+    def _run_cycle_manifold(self, q, v, R, Rd, u_ff) -> CycleLog:
+        """The same loop for models whose configuration is not a plain vector (pin.integrate)."""
         n = len(R)
-        Q = np.empty((n, q.shape[0]))
-        V = np.empty((n, v.shape[0]))
-        U = np.empty((n, v.shape[0]))
-        C, kp, kd, S = self.law.C, self.law.kp, self.law.kd, self.actuated
-        advance = self.advance
+        Q, V, U = np.empty((n, q.shape[0])), np.empty((n, v.shape[0])), np.empty((n, v.shape[0]))
         for k in range(n):
             Q[k], V[k] = q, v
-            u_fb = kp * (R[k] - C @ q) + kd * (Rd[k] - C @ v)
-            U[k] = u_fb
-            q, v = advance(q, v, S * (u_ff[k] + u_fb))
+            U[k] = self.law.feedback(q, v, R[k], Rd[k])
+            q, v = self.advance(q, v, self.actuated * (u_ff[k] + U[k]))
         return CycleLog(Q, V, U, q, v)

@@ -149,7 +149,7 @@ def _dae_resources(mesh_path: Path) -> dict[str, str]:
 
 
 def _lower_geometry_object(gobj: pin.GeometryObject, rgba, file_materials: bool = False,
-                           cache: dict | None = None) -> dict | None:
+                           cache: dict | None = None, key=None) -> dict | None:
     """The three.js JSON ("object" of a meshcat set_object command) for one geometry object.
 
     Meshes are drawn from the triangles Pinocchio loaded (compact, already scaled, what the
@@ -195,12 +195,11 @@ def _lower_geometry_object(gobj: pin.GeometryObject, rgba, file_materials: bool 
     elif isinstance(geom, coal.Capsule):
         shape = _capsule(mg, 2.0 * float(geom.halfLength), float(geom.radius))
     elif isinstance(geom, (coal.BVHModelBase, coal.ConvexBase)):
-        key = id(geom)
-        if cache is not None and key in cache:
+        if cache is not None and key is not None and key in cache:
             shape = cache[key]
         else:
             shape = _triangles(mg, geom)
-            if cache is not None:
+            if cache is not None and key is not None:
                 cache[key] = shape
         if shape is not None:
             scale = np.eye(4)  # Pinocchio scaled the triangles when it loaded them
@@ -306,7 +305,7 @@ class _Scene:
         cache: dict = {}
         for i, gobj in enumerate(self.visual_model.geometryObjects):
             obj = _lower_geometry_object(
-                gobj, gobj.meshColor, cache=cache,
+                gobj, gobj.meshColor, cache=cache, key=i,
                 file_materials=self.mesh_materials and not gobj.overrideMaterial)
             if obj is None:
                 continue
@@ -318,7 +317,7 @@ class _Scene:
                 else:
                     rgba = [float(c) for c in self.ghost_color]
                     rgba = rgba[:3] + [rgba[3] if len(rgba) > 3 else self.ghost_opacity]
-                gobj_cmd = _lower_geometry_object(gobj, rgba, cache=cache)
+                gobj_cmd = _lower_geometry_object(gobj, rgba, cache=cache, key=i)
                 cmds.append({"type": "set_object", "path": self.path(GHOST, i),
                              "object": gobj_cmd})
         if self.ghost and np.any(self.ghost_offset):
@@ -361,14 +360,25 @@ class _Scene:
             lo, hi = -np.ones(3), np.ones(3)
         return lo, hi
 
-    def camera_commands(self, qs: list[np.ndarray]) -> list[dict]:
-        """Aim meshcat's default camera at the robot, looking along its thinnest extent."""
-        lo, hi = self.bounds(qs)
+    def reach_bounds(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A cube around the first joint holding every pose the robot can reach from q.
+
+        (Conservative: the farthest geometry from the first joint at q, in every direction.)
+        """
+        lo, hi = self.bounds([q])
+        base = self.data.oMi[1].translation.copy() if self.model.njoints > 1 else np.zeros(3)
+        reach = float(np.max(np.maximum(np.abs(lo - base), np.abs(hi - base))))
+        reach = max(reach, float(np.linalg.norm(np.maximum(np.abs(lo - base),
+                                                             np.abs(hi - base)))))
+        return base - reach, base + reach
+
+    def camera_commands(self, lo: np.ndarray, hi: np.ndarray) -> list[dict]:
+        """Aim meshcat's default camera at the box [lo, hi], looking along its thinnest side."""
         if self.ghost and np.any(self.ghost_offset):
             lo, hi = np.minimum(lo, lo + self.ghost_offset), np.maximum(hi, hi + self.ghost_offset)
         center = 0.5 * (lo + hi)
         extent = np.maximum(hi - lo, 1e-3)
-        thin = int(np.argmin(extent))
+        thin = int(np.argmin(extent)) if extent.max() > 1.2 * extent.min() else 1
         view = np.zeros(3)
         view[thin] = -1.0  # look from the negative side of the thinnest axis (-y for x-z arms)
         if thin == 2:
@@ -377,14 +387,19 @@ class _Scene:
         view /= np.linalg.norm(view)
         # meshcat's default camera: vertical field of view 75 deg; fit the box with a margin.
         size = float(np.linalg.norm(extent))
-        dist = max(0.5, 0.6 * size / math.tan(math.radians(75.0 / 2.0)))
+        dist = max(0.5, 0.5 * size / math.tan(math.radians(75.0 / 2.0)))
         eye = view * dist
+        # The orbit controls always look at the world origin (three.js lookAt is in world
+        # coordinates, whatever the transform of /Cameras/default), so instead of moving the
+        # camera's target we move the world: the robot, the grid and the axes shift by -center.
+        shift = _colmajor(_translation(-center))
         # The camera sits in /Cameras/default/rotated, turned +90 deg about x (three.js is y-up):
         # a world offset (a, b, c) is (a, c, -b) there.
         local = [float(eye[0]), float(eye[2]), float(-eye[1])]
         return [
-            {"type": "set_transform", "path": "/Cameras/default",
-             "matrix": _colmajor(_translation(center))},
+            {"type": "set_transform", "path": ROOT, "matrix": shift},
+            {"type": "set_transform", "path": "/Grid", "matrix": shift},
+            {"type": "set_transform", "path": "/Axes", "matrix": shift},
             {"type": "set_property", "path": "/Cameras/default/rotated/<object>",
              "property": "position", "value": local},
         ]
@@ -490,7 +505,7 @@ def record_html(robot, frames: Mapping[str, np.ndarray], dt: float, path: Path,
     commands = _background_commands() + scene.object_commands()
     all_q = [q for _, qs, qg, _ in clips for q in ([qs] + ([qg] if qg is not None else []))]
     sample = [q for qs in all_q for q in qs[:: max(1, len(qs) // 20)]] + [qs[-1] for qs in all_q]
-    commands += scene.camera_commands(sample)
+    commands += scene.camera_commands(*scene.bounds(sample))
     first_name, first_q, first_g, _ = clips[0]
     commands += scene.transform_commands(SYSTEM, first_q[0])
     if ghost:
@@ -827,9 +842,10 @@ class LiveViewer:
 
     def _load(self) -> None:
         q0 = pin.neutral(self.scene.model)
-        for cmd in [{"type": "delete", "path": ROOT}] + _background_commands() \
-                + self.scene.object_commands() + self.scene.camera_commands([q0]) \
-                + self.scene.transform_commands(SYSTEM, q0):
+        objects = self.scene.object_commands()
+        camera = self.scene.camera_commands(*self.scene.reach_bounds(q0))
+        for cmd in ([{"type": "delete", "path": ROOT}] + _background_commands() + objects
+                    + camera + self.scene.transform_commands(SYSTEM, q0)):
             self._send(cmd)
         if self.scene.ghost:
             self._send(self.scene.visible_command(GHOST, False))

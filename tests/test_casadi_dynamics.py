@@ -196,3 +196,31 @@ def test_unsupported_joint_names_the_joint():
     model = pin.buildModelFromUrdf(str(ROBOTS_DIR / "two_link_arm.urdf"), pin.JointModelFreeFlyer())
     with pytest.raises(InputError, match="root_joint.*JointModelFreeFlyer"):
         CasadiDynamics(model)
+
+
+def test_results_are_independent_copies():
+    dyn = CasadiDynamics(_bundled("two_link_arm"))
+    zeros = np.zeros(2)
+    first = dyn.inverse(zeros, zeros, zeros)
+    kept = first.copy()
+    dyn.inverse(np.ones(2), np.ones(2), np.ones(2))
+    np.testing.assert_array_equal(first, kept)
+    first[:] = 123.0  # writing into a result does not change the next one
+    np.testing.assert_array_equal(dyn.inverse(zeros, zeros, zeros), kept)
+
+
+def test_wrong_shape_is_rejected():
+    dyn = CasadiDynamics(_bundled("two_link_arm"))
+    with pytest.raises(ValueError, match="'q' has shape"):
+        dyn.inverse(np.zeros(3), np.zeros(2), np.zeros(2))
+
+
+def test_pickles_for_process_pools():
+    import pickle
+
+    model = erd.load("ur5").model
+    dyn = CasadiDynamics(model)
+    clone = pickle.loads(pickle.dumps(dyn))
+    q, v, a = (np.linspace(-1.0, 1.0, 6) * k for k in (1.0, 0.5, 2.0))
+    np.testing.assert_array_equal(clone.inverse(q, v, a), dyn.inverse(q, v, a))
+    np.testing.assert_array_equal(clone.forward(q, v, a), dyn.forward(q, v, a))

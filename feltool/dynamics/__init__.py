@@ -35,6 +35,14 @@ class Dynamics(Protocol):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(d tau/d q, d tau/d v, d tau/d a = M(q))`` of the inverse model, each ``nv x nv``."""
 
+    def inverse_batch(self, Q: np.ndarray, V: np.ndarray, A: np.ndarray) -> np.ndarray:
+        """:meth:`inverse` on every row of ``(n, nv)`` arrays."""
+
+    def inverse_derivatives_batch(
+        self, Q: np.ndarray, V: np.ndarray, A: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(tau, d tau/d q, d tau/d v, M)`` on every row; ``(n, nv)`` and ``(n, nv, nv)``."""
+
     def integrate(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """Configuration reached from ``q`` by the displacement ``dq`` (tangent vector)."""
 

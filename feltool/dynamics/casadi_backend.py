@@ -349,7 +349,7 @@ def symbolic_rnea(model: pin.Model) -> ca.Function:
     joints = _describe_joints(model)
     q, v, a = _symbols(model, "a")
     tau = _rnea_expr(model, joints, q, v, a)
-    return ca.Function("rnea", [q, v, a], [tau], ["q", "v", "a"], ["tau"])
+    return ca.Function("rnea", [q, v, a], [ca.densify(tau)], ["q", "v", "a"], ["tau"])
 
 
 def symbolic_aba(model: pin.Model) -> ca.Function:
@@ -367,7 +367,7 @@ def symbolic_aba(model: pin.Model) -> ca.Function:
     joints = _describe_joints(model)
     q, v, tau = _symbols(model, "tau")
     acc = _aba_expr(model, joints, q, v, tau)
-    return ca.Function("aba", [q, v, tau], [acc], ["q", "v", "tau"], ["a"])
+    return ca.Function("aba", [q, v, tau], [ca.densify(acc)], ["q", "v", "tau"], ["a"])
 
 
 def symbolic_rnea_derivatives(model: pin.Model) -> ca.Function:
@@ -398,12 +398,48 @@ def symbolic_rnea_derivatives(model: pin.Model) -> ca.Function:
 # The backend
 
 
-def _column(x: ca.DM) -> np.ndarray:
-    return np.asarray(x.full(), dtype=float).reshape(-1)
+class _BufferedCall:
+    """Evaluates a CasADi ``Function`` of dense vectors through ``Function.buffer()``.
 
+    Calling a ``Function`` from Python with numpy arguments costs some 40 us of argument
+    conversion, whatever the work inside; the buffer interface evaluates in place on numpy arrays
+    that it was handed once (about 1 us for the two-link arm). Inputs are copied into the
+    pre-allocated arrays and every result is returned as a fresh copy. Not thread-safe: one
+    instance per thread (each :class:`CasadiDynamics` owns its own).
+    """
 
-def _matrix(x: ca.DM) -> np.ndarray:
-    return np.asarray(x.full(), dtype=float)
+    def __init__(self, fn: ca.Function):
+        for i in range(fn.n_in()):
+            if fn.nnz_in(i) != fn.numel_in(i) or fn.size2_in(i) != 1:
+                raise ValueError(f"{fn.name()}: input {i} is not a dense column vector")
+        for i in range(fn.n_out()):
+            if fn.nnz_out(i) != fn.numel_out(i):
+                raise ValueError(f"{fn.name()}: output {i} is not dense")
+        self.fn = fn
+        self._buffer, self._eval = fn.buffer()
+        self._args = [np.zeros(fn.numel_in(i)) for i in range(fn.n_in())]
+        self._results = [np.zeros(fn.numel_out(i)) for i in range(fn.n_out())]
+        self._shapes = [fn.size_out(i) for i in range(fn.n_out())]
+        for i, arr in enumerate(self._args):
+            self._buffer.set_arg(i, memoryview(arr))
+        for i, arr in enumerate(self._results):
+            self._buffer.set_res(i, memoryview(arr))
+
+    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
+        for i, (dst, src) in enumerate(zip(self._args, args, strict=True)):
+            src = np.asarray(src, dtype=float)
+            if src.shape != dst.shape:
+                raise ValueError(
+                    f"{self.fn.name()}: argument '{self.fn.name_in(i)}' has shape {src.shape}, "
+                    f"expected {dst.shape}"
+                )
+            dst[:] = src
+        self._eval()
+        out = []
+        for res, (rows, cols) in zip(self._results, self._shapes, strict=True):
+            # CasADi stores dense matrices column by column.
+            out.append(res.copy() if cols == 1 else res.reshape(rows, cols, order="F").copy())
+        return out
 
 
 class CasadiDynamics:
@@ -413,6 +449,8 @@ class CasadiDynamics:
     new float numpy arrays out (1-D vectors, 2-D matrices). The CasADi ``Function`` objects are
     built once, in the constructor, and kept as :attr:`rnea_fn`, :attr:`aba_fn` and
     :attr:`derivatives_fn` (use them directly for code generation or inside larger CasADi graphs).
+    The numeric methods evaluate them through CasADi's low-overhead buffer interface, so an
+    instance must not be shared between threads; it pickles (by its model) for process pools.
     """
 
     def __init__(self, model: pin.Model):
@@ -425,22 +463,30 @@ class CasadiDynamics:
         self.rnea_fn: ca.Function = symbolic_rnea(model)
         self.aba_fn: ca.Function = symbolic_aba(model)
         self.derivatives_fn: ca.Function = symbolic_rnea_derivatives(model)
-        self._data = None if self.euclidean else model.createData()
+        self._rnea = _BufferedCall(self.rnea_fn)
+        self._aba = _BufferedCall(self.aba_fn)
+        self._derivatives = _BufferedCall(self.derivatives_fn)
+
+    def __getstate__(self) -> dict:
+        return {"model": self.model}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["model"])
 
     def inverse(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """Joint torques (nv) in [N m] or [N] that produce acceleration ``a``: RNEA."""
-        return _column(self.rnea_fn(q, v, a))
+        return self._rnea(q, v, a)[0]
 
     def forward(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Joint accelerations (nv) in [rad/s^2] or [m/s^2] under torques ``tau``: ABA."""
-        return _column(self.aba_fn(q, v, tau))
+        return self._aba(q, v, tau)[0]
 
     def inverse_derivatives(
         self, q: np.ndarray, v: np.ndarray, a: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(d tau/d q, d tau/d v, M(q))``, each nv x nv, from CasADi's jacobians of the RNEA."""
-        dq, dv, mass = self.derivatives_fn(q, v, a)
-        return _matrix(dq), _matrix(dv), _matrix(mass)
+        dq, dv, mass = self._derivatives(q, v, a)
+        return dq, dv, mass
 
     def integrate(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """Configuration reached from ``q`` by the tangent displacement ``dq``.

@@ -18,6 +18,7 @@ class PinocchioDynamics:
         self.data = model.createData()
         self.nq = model.nq
         self.nv = model.nv
+        self._lower = np.tril_indices(model.nv, -1)
         #: True when configuration and velocity spaces coincide (revolute/prismatic joints only),
         #: so that integration is a plain vector addition.
         self.euclidean = model.nq == model.nv and all(
@@ -33,9 +34,29 @@ class PinocchioDynamics:
     def inverse_derivatives(self, q, v, a):
         pin.computeRNEADerivatives(self.model, self.data, q, v, a)
         mass = self.data.M.copy()
-        # Pinocchio fills only the upper triangle of M here.
-        mass = np.triu(mass) + np.triu(mass, 1).T
+        mass[self._lower] = mass.T[self._lower]  # Pinocchio fills only the upper triangle
         return self.data.dtau_dq.copy(), self.data.dtau_dv.copy(), mass
+
+    def inverse_batch(self, Q, V, A):
+        """RNEA along a trajectory: rows of ``Q, V, A`` -> rows of torques ``(n, nv)``."""
+        out = np.empty((len(Q), self.nv))
+        model, data, rnea = self.model, self.data, pin.rnea
+        for k in range(len(Q)):
+            out[k] = rnea(model, data, Q[k], V[k], A[k])
+        return out
+
+    def inverse_derivatives_batch(self, Q, V, A):
+        """``(tau, d tau/d q, d tau/d v, M)`` along a trajectory, shapes ``(n, nv)`` and
+        ``(n, nv, nv)``: one pass of Pinocchio's RNEA derivatives per sample."""
+        n, nv = len(Q), self.nv
+        tau, Dq, Dv, M = np.empty((n, nv)), np.empty((n, nv, nv)), np.empty((n, nv, nv)), \
+            np.empty((n, nv, nv))
+        model, data, derivatives = self.model, self.data, pin.computeRNEADerivatives
+        for k in range(n):
+            Dq[k], Dv[k], M[k] = derivatives(model, data, Q[k], V[k], A[k])
+            tau[k] = data.tau
+        M = np.triu(M) + np.swapaxes(np.triu(M, 1), 1, 2)  # Pinocchio fills the upper triangle
+        return tau, Dq, Dv, M
 
     def integrate(self, q, dq):
         if self.euclidean:
