@@ -84,8 +84,11 @@ class ViewerError(FeltoolError):
 def _meshcat():
     """Import meshcat lazily: only the viewer needs it."""
     try:
-        import meshcat.geometry as mg
-        import umsgpack
+        with warnings.catch_warnings():
+            # meshcat 0.3.2 imports pyzmq's deprecated zmq.eventloop.ioloop
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import meshcat.geometry as mg
+            import umsgpack
     except ImportError as exc:  # pragma: no cover - a declared dependency
         raise ViewerError(f"the viewer needs the 'meshcat' package ({exc})") from None
     return mg, umsgpack
@@ -250,8 +253,8 @@ class _MeshFile:
         self.fmt = fmt
 
     def lower_in_object(self, object_data: dict) -> str:
-        object_data["geometries"].append(
-            {"uuid": self.uuid, "type": "_meshfile_geometry", "format": self.fmt, "data": self.data})
+        object_data["geometries"].append({"uuid": self.uuid, "type": "_meshfile_geometry",
+                                          "format": self.fmt, "data": self.data})
         return self.uuid
 
 
@@ -333,7 +336,7 @@ class _Scene:
 
     def transform_commands(self, which: str, q: np.ndarray) -> list[dict]:
         return [{"type": "set_transform", "path": self.path(which, i), "matrix": _colmajor(T)}
-                for i, T in zip(self.drawn, self.placements(q))]
+                for i, T in zip(self.drawn, self.placements(q), strict=True)]
 
     def visible_command(self, which: str, visible: bool) -> dict:
         return {"type": "set_property", "path": f"{ROOT}/{which}", "property": "visible",
@@ -353,7 +356,7 @@ class _Scene:
                 centers.append(np.zeros(3))
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         for q in qs:
-            for T, r, c in zip(self.placements(q), radii, centers):
+            for T, r, c in zip(self.placements(q), radii, centers, strict=True):
                 p = T[:3, :3] @ c + T[:3, 3]
                 lo, hi = np.minimum(lo, p - r), np.maximum(hi, p + r)
         if not np.all(np.isfinite(lo)):

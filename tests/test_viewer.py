@@ -40,8 +40,9 @@ def arm():
 
 def _clips():
     t = np.arange(0.0, 0.5, DT)
-    first = np.stack([np.pi / 4 + 0.3 * np.sin(2 * np.pi * t), 0.6 + 0.4 * np.cos(2 * np.pi * t)], 1)
-    last = np.stack([np.pi / 3 + 0.2 * np.sin(2 * np.pi * t), 0.3 + 0.2 * np.cos(2 * np.pi * t)], 1)
+    s, c = np.sin(2 * np.pi * t), np.cos(2 * np.pi * t)
+    first = np.stack([np.pi / 4 + 0.3 * s, 0.6 + 0.4 * c], 1)
+    last = np.stack([np.pi / 3 + 0.2 * s, 0.3 + 0.2 * c], 1)
     ghost = {"first cycle": first + 0.15, "last cycle": last + 0.02}
     return {"first cycle": first, "last cycle": last}, ghost
 
@@ -99,7 +100,8 @@ def test_record_html_scene_and_animation(arm, arm_html):
     # colours from meshColor: the orange link is solid, its ghost translucent
     link2 = {c["path"]: c["object"]["materials"][0] for c in cmds if c["type"] == "set_object"
              and c["path"].endswith("/link2_0")}
-    solid, ghost_mat = link2["/meshcat/feltool/system/link2_0"], link2["/meshcat/feltool/ghost/link2_0"]
+    solid = link2["/meshcat/feltool/system/link2_0"]
+    ghost_mat = link2["/meshcat/feltool/ghost/link2_0"]
     assert solid["color"] == ghost_mat["color"] == (242 << 16) | (140 << 8) | 38
     assert solid["opacity"] == 1.0 and not solid["transparent"]
     assert ghost_mat["opacity"] < 0.5 and ghost_mat["transparent"]
@@ -144,7 +146,8 @@ def test_record_html_rejects_bad_frames(arm, tmp_path):
     with pytest.raises(ViewerError, match="nq=2"):
         record_html(arm, {"a": np.zeros((5, 3))}, DT, tmp_path / "x.html")
     with pytest.raises(ViewerError, match="same clip names"):
-        record_html(arm, frames, DT, tmp_path / "x.html", ghost_frames={"first cycle": frames["first cycle"]})
+        record_html(arm, frames, DT, tmp_path / "x.html",
+                    ghost_frames={"first cycle": frames["first cycle"]})
     with pytest.raises(ViewerError, match="ghost frames"):
         record_html(arm, {"a": np.zeros((5, 2))}, DT, tmp_path / "x.html",
                     ghost_frames={"a": np.zeros((4, 2))})
@@ -323,3 +326,27 @@ def test_recording_renders_offline_in_chromium(arm_html, tmp_path):
     blue = (b > 140) & (b > r + 60) & (b > g + 30)  # link1 (0.20 0.45 0.80)
     assert orange.sum() > 200, f"only {orange.sum()} orange pixels: link 2 is not drawn"
     assert blue.sum() > 200, f"only {blue.sum()} blue pixels: link 1 is not drawn"
+
+
+def test_record_html_all_primitive_shapes(arm, tmp_path):
+    coal = pytest.importorskip("coal")
+    from feltool.robot import Robot
+
+    shapes = {"box": coal.Box(0.1, 0.2, 0.3), "sphere": coal.Sphere(0.1),
+              "cylinder": coal.Cylinder(0.05, 0.4), "cone": coal.Cone(0.05, 0.2),
+              "capsule": coal.Capsule(0.05, 0.3), "ellipsoid": coal.Ellipsoid(0.1, 0.2, 0.3)}
+    gm = pin.GeometryModel()
+    for k, (name, shape) in enumerate(shapes.items()):
+        obj = pin.GeometryObject(name, 1 + k % 2, pin.SE3(np.eye(3), np.array([0.3 * k, 0, 0])),
+                                 shape)
+        obj.meshColor = np.array([0.1 * k, 0.5, 0.9, 1.0])
+        gm.addGeometryObject(obj)
+    robot = Robot(name="shapes", model=arm.model, source="test", _visual_model=gm)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        path = record_html(robot, {"a": np.zeros((4, 2))}, 0.1, tmp_path / "shapes.html")
+    types = {c["path"].rsplit("/", 1)[1]: c["object"]["geometries"][0]["type"]
+             for c in _commands(path.read_text()) if c["type"] == "set_object"}
+    assert types == {"box": "BoxGeometry", "sphere": "SphereGeometry",
+                     "cylinder": "CylinderGeometry", "cone": "CylinderGeometry",
+                     "capsule": "BufferGeometry", "ellipsoid": "SphereGeometry"}
