@@ -756,8 +756,9 @@ class LiveViewer:
                 self.zmq_url = zmq_url
                 self._connect()
                 self.url = self._request(b"url").decode("utf-8")
-            if self._socket is None:
-                self._connect()
+                # as meshcat's own client does: reconnect after asking for the URL, or the
+                # server's receiver can stall until the next connection
+            self._connect()
             self._load()
         except BaseException:
             self.close()

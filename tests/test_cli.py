@@ -143,3 +143,20 @@ def test_robots_and_inspect():
     info = json.loads(res.stdout)
     assert [j["name"] for j in info["joints"]] == ["shoulder", "elbow"]
     assert info["total_mass"] == pytest.approx(4.0)
+
+
+def test_diverging_seed_is_reported_and_keeps_its_metrics(tmp_path):
+    """Too large a learning rate makes the arm fall: the seed stops with a clear message,
+    "diverged": true, and every metric up to the failing cycle; exit code 1."""
+    out = tmp_path / "div"
+    res = feltool("run", STANDARD, "--seeds", "0", "--cycles", "30", "--out", str(out),
+                  "--set", "learning.rates.weights=3")
+    assert res.returncode == 1
+    assert "DIVERGED: seed 0, cycle" in res.stdout
+    assert "Traceback" not in res.stderr and "Warning" not in res.stderr
+    seed = json.loads((out / "summary.json").read_text())["seeds"][0]
+    assert seed["diverged"] is True
+    assert "non-finite" in seed["diverged_reason"] or "fell" in seed["diverged_reason"]
+    rows = list(csv.DictReader(open(out / "metrics.csv")))
+    assert len(rows) == seed["cycles"] >= 1
+    assert [int(r["cycle"]) for r in rows] == list(range(1, len(rows) + 1))
