@@ -109,8 +109,8 @@ class Robot:
             if self.urdf_path is None:
                 raise RobotError(f"robot '{self.name}' has no URDF to take visuals from")
             self._visual_model = pin.buildGeomFromUrdf(
-                self.model, str(self.urdf_path), pin.GeometryType.VISUAL, self.package_dirs
-            )
+                self.model, str(self.urdf_path), pin.GeometryType.VISUAL,
+                package_dirs=self.package_dirs)
         return self._visual_model
 
 
