@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from feltool.config import (ExperimentConfig, apply_overrides, parse_config, read_yaml)
+from feltool.config import ExperimentConfig, apply_overrides, parse_config, read_yaml
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
