@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from feltool.checkpoint import Checkpointer, Interrupted, stop_requested
 from feltool.config import ExperimentConfig, apply_overrides, parse_config, read_yaml
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics, make_dynamics
@@ -385,8 +386,14 @@ class CycleOutcome:
 
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
-             progress: Callable[[int, float], None] | None = None) -> SeedResult:
-    """Run one seed's learning and return its metrics (see the run directory's metrics.csv)."""
+             progress: Callable[[int, float], None] | None = None,
+             checkpoint: Checkpointer | None = None) -> SeedResult:
+    """Run one seed's learning and return its metrics (see the run directory's metrics.csv).
+
+    With a ``checkpoint``, the seed continues from its last checkpoint (bit-identically), saves
+    one every ``checkpoint.every`` cycles, and on a stop request saves and raises
+    :class:`~feltool.checkpoint.Interrupted`.
+    """
     cfg = exp.config
     cycles = cycles or cfg.sim.cycles
     theta = exp.initial_parameters(seed)
@@ -394,10 +401,19 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     Qd, Vd, _ = exp.primitives.desired(theta)
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
-    reason = None
+    reason, start, wall_before = None, 1, 0.0
     run_cycle = _cycle_runner(exp, theta)
+    saved = checkpoint.load() if checkpoint is not None else None
+    if saved is not None:
+        start = saved["cycle"] + 1
+        theta, q, v = saved["theta"], saved["q"], saved["v"]
+        rows, wall_before = saved["rows"], saved["wall_s"]
+        history = list(saved["history"])
+        traces = {k[len("trace_"):]: v for k, v in saved.items() if k.startswith("trace_")}
+        if "rmp_x" in saved:
+            _restore_rmp_states(run_cycle, saved)
     t0 = time.perf_counter()
-    for cycle in range(1, cycles + 1):
+    for cycle in range(start, cycles + 1):
         out = run_cycle(theta, q, v)
         reason = _divergence(exp, out)
         if reason:
@@ -412,10 +428,17 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         q, v = out.q_end, out.v_end
         if progress is not None:
             progress(cycle, row["fb_abs_mean_error"])
-    wall = time.perf_counter() - t0
+        if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
+            _save_checkpoint(checkpoint, cycle, theta, q, v, rows, history, traces,
+                             wall_before + time.perf_counter() - t0, run_cycle)
+            if stop_requested() and cycle < cycles:
+                raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
+    wall = wall_before + time.perf_counter() - t0
     if last is not None:
         traces.update(_trace("last", *last.trace()))
     steps = n * (len(rows) + (1 if reason else 0))
+    if checkpoint is not None:
+        checkpoint.clear()
     summary = _seed_summary(exp, seed, rows, reason, wall, steps)
     params = exp.split_parameters(theta)
     hist = np.array(history)
@@ -428,13 +451,39 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
 
 
 def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOutcome]:
-    """The function that runs one cycle for this experiment's backend and update mode."""
+    """The function that runs one cycle for this experiment's backend and update mode.
+
+    A per-step runner carries the RMP states from cycle to cycle in its ``rmp_states``.
+    """
     if exp.config.backend == "compiled":
         return _compiled_runner(exp)
     if exp.config.learning.step == "per_step":
         states = _limit_cycle_states(exp, theta0)
-        return lambda theta, q, v: _outcome(exp, *_per_step_cycle(exp, theta, q, v, states))
+
+        def per_step(theta, q, v):
+            return _outcome(exp, *_per_step_cycle(exp, theta, q, v, states))
+
+        per_step.rmp_states = states
+        return per_step
     return lambda theta, q, v: _per_cycle(exp, theta, q, v)
+
+
+def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history, traces,
+                     wall, run_cycle) -> None:
+    arrays = {"theta": theta, "q": q, "v": v, "history": np.array(history)}
+    arrays.update({f"trace_{k}": val for k, val in traces.items()})
+    states = getattr(run_cycle, "rmp_states", None)
+    if states is not None:
+        keys = sorted(states)
+        arrays["rmp_keys"] = np.array(keys)
+        arrays["rmp_x"] = np.array([states[k][0] for k in keys])
+        arrays["rmp_S"] = np.array([states[k][1] for k in keys])
+    checkpoint.save(cycle, arrays, {"rows": rows, "wall_s": wall})
+
+
+def _restore_rmp_states(run_cycle, saved: dict) -> None:
+    for key, x, S in zip(saved["rmp_keys"], saved["rmp_x"], saved["rmp_S"]):
+        run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
 
 
 def _per_cycle(exp: Experiment, theta: np.ndarray, q, v) -> CycleOutcome:
