@@ -81,3 +81,7 @@ class Checkpointer:
     def clear(self) -> None:
         self.arrays.unlink(missing_ok=True)
         self.meta.unlink(missing_ok=True)
+        try:
+            self.directory.rmdir()  # only when no other seed still has a checkpoint
+        except OSError:
+            pass

@@ -104,6 +104,34 @@ def print_summary(summary: dict, out_dir: Path) -> None:
     print(f"  diverged: {agg['n_diverged']}   run directory: {out_dir}")
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from feltool.runner import default_out_dir
+    from feltool.sweep import parse_grid, run_sweep
+
+    progress = args.progress and sys.stderr.isatty()
+    if args.resume is not None:
+        out_dir, config, grid = args.resume, None, None
+        if not (out_dir / "sweep.json").is_file():
+            raise InputError(f"{out_dir}: no sweep.json, so not a sweep directory to resume")
+    else:
+        if args.config is None:
+            raise InputError("sweep needs a CONFIG (or --resume SWEEP_DIR)")
+        config, grid = args.config, parse_grid(args.grid or [])
+        out_dir = args.out or default_out_dir(Path(config).stem + "-sweep")
+    seeds = parse_seeds(args.seeds) if args.seeds else None
+    try:
+        rows = run_sweep(config, grid, out_dir, seeds, args.cycles, args.workers, args.scheduler,
+                         progress)
+    except Interrupted as exc:
+        raise Interrupted(f"{exc}; continue with: feltool sweep --resume {out_dir}") from None
+    points = len({r["point"] for r in rows})
+    conv = sum(r["converged_cycle"] is not None for r in rows)
+    div = sum(bool(r["diverged"]) for r in rows)
+    print(f"sweep: {points} points x {len(rows) // max(points, 1)} seeds; converged {conv}, "
+          f"diverged {div}; {out_dir / 'sweep.csv'}")
+    return 0
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     exp, _ = _load(args.config, list(args.set or []))
     cfg = exp.config
@@ -173,6 +201,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="no progress bar")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("sweep", help="run a grid of config overrides over seeds")
+    p.add_argument("config", nargs="?", help="experiment YAML, or the name of a bundled config")
+    p.add_argument("--grid", action="append", metavar="A.B.C=V1,V2",
+                   help="a swept field and its values (repeatable; the product is run)")
+    p.add_argument("--seeds", help="seeds per point, e.g. 0-9")
+    p.add_argument("--cycles", type=_positive_int, help="learning cycles per seed")
+    p.add_argument("--out", type=Path, help="sweep directory (default runs/<name>-sweep-<time>)")
+    p.add_argument("--workers", type=_positive_int, help="local processes (default: all cores)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:8786",
+                   help="run on a Dask cluster (default $FELTOOL_SCHEDULER, else locally)")
+    p.add_argument("--resume", type=Path, metavar="SWEEP_DIR", help="continue a sweep")
+    p.add_argument("--no-progress", dest="progress", action="store_false")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("check", help="validate a config without running it")
     p.add_argument("config")

@@ -168,6 +168,14 @@ class LearningConfig(Strict):
                                       "to max(1, |theta_i|) [-].")
 
 
+class SweepConfig(Strict):
+    """A grid for ``feltool sweep`` (ignored by ``feltool run``)."""
+
+    grid: dict[str, list[Any]] = Field(default_factory=dict, description="Dotted config paths "
+                                       "and the values to try, e.g. {learning.rates.weights: "
+                                       "[0.1, 0.2]}; the product of all is run.")
+
+
 class ExperimentConfig(Strict):
     """One FEL experiment: a robot, the roles of its joints, and how to learn."""
 
@@ -191,6 +199,7 @@ class ExperimentConfig(Strict):
                                      description="Feedback error learning.")
     seeds: int | list[Annotated[int, Field(ge=0)]] = Field(20, description="Number of seeds "
                                                           "(0..n-1) or an explicit list.")
+    sweep: SweepConfig | None = Field(None, description="Grid for feltool sweep.")
 
     @field_validator("gravity")
     @classmethod
