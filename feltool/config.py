@@ -81,14 +81,36 @@ class Gains(Strict):
     kd: NonNegFloat = Field(description="Derivative gain K_D in [N m s/rad].")
 
 
+Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+
+
 class Target(Strict):
-    """What a stabilizing controller holds (§3.1): a joint angle, or a link's absolute angle
-    given as the sum of the joint angles from the base to that link (planar chains)."""
+    """What a stabilizing controller holds (§3.1): a joint angle; a link's absolute angle given
+    as the sum of the joint angles from the base to that link (planar chains); or the
+    orientation of any frame about a world axis (its torque then acts through the frame
+    Jacobian on every joint that moves the frame)."""
 
     value: FiniteFloat = Field(description="Target value of the stabilized quantity in [rad].")
     link_angle: list[str] | None = Field(None, min_length=1, description="Joints whose angles "
                                          "add up to the stabilized link's absolute angle, e.g. "
                                          "[shoulder, elbow] for q1 + q2; default the joint itself.")
+    frame: str | None = Field(None, description="A URDF link/frame name: stabilize the angle of "
+                              "its `vector` about the world axis `about`, measured from `zero`.")
+    vector: Vector3 = Field([0.0, 0.0, 1.0], description="Direction in the frame's own "
+                            "coordinates whose orientation is held (with `frame`).")
+    about: Vector3 = Field([0.0, 1.0, 0.0], description="World axis the angle turns about, "
+                           "counter-clockwise (with `frame`).")
+    zero: Vector3 | None = Field(None, description="World direction where the angle is 0 "
+                                 "(with `frame`); default +z, or +x when `about` is vertical.")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> Target:
+        if self.frame is not None and self.link_angle is not None:
+            raise ValueError("give either 'link_angle' or 'frame', not both")
+        for name in ("vector", "about") + (("zero",) if self.zero is not None else ()):
+            if sum(x * x for x in getattr(self, name)) < 1e-12:
+                raise ValueError(f"'{name}' must not be the zero vector")
+        return self
 
 
 class LearnConfig(Strict):

@@ -18,7 +18,7 @@ import pinocchio as pin
 
 from feltool.checkpoint import Checkpointer, Interrupted, stop_requested
 from feltool.config import ExperimentConfig, apply_overrides, parse_config, read_yaml
-from feltool.control import FeedbackLaw
+from feltool.control import FeedbackLaw, FrameAngle, wrap
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.fel import FeedbackErrorLearner, feedforward
@@ -168,6 +168,11 @@ def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
         if robot.model.joints[robot.joint_id(name)].nv != 1:
             problems.append((f"joints.{name}", "feltool roles need a one-degree-of-freedom joint"))
         target = jc.get("target") if isinstance(jc, dict) else None
+        frame = target.get("frame") if isinstance(target, dict) else None
+        if isinstance(frame, str) and not robot.model.existFrame(frame):
+            frames = ", ".join(f.name for f in robot.model.frames if f.name != "universe")
+            problems.append((f"joints.{name}.target.frame", f"robot '{robot.name}' has no "
+                                                            f"frame '{frame}' (its frames: {frames})"))
         links = target.get("link_angle") if isinstance(target, dict) else None
         if isinstance(links, list):
             for i, other in enumerate(links):
@@ -240,6 +245,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     C = np.zeros((nv, nv))
     kp, kd, targets = np.zeros(nv), np.zeros(nv), np.zeros(nv)
     tracking, stabilizing, actuated = (np.zeros(nv, bool) for _ in range(3))
+    frames: dict[int, FrameAngle] = {}
     for i, name in enumerate(joints):
         jc = cfg.joints[name]
         actuated[i] = jc.role != "passive"
@@ -247,13 +253,18 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
             tracking[i], C[i, i] = True, 1.0
         elif jc.role == "stabilize":
             stabilizing[i] = True
-            for other in jc.target.link_angle or [name]:
-                C[i, joints.index(other)] += 1.0
-            targets[i] = jc.target.value
+            t = jc.target
+            if t.frame is not None:
+                frames[i] = FrameAngle(robot.model, t.frame, t.vector, t.about, t.zero)
+            else:
+                for other in t.link_angle or [name]:
+                    C[i, joints.index(other)] += 1.0
+            targets[i] = t.value
         if jc.gains is not None and jc.role != "passive":
             kp[i], kd[i] = jc.gains.kp, jc.gains.kd
-    law = FeedbackLaw(C, kp, kd, tracking, stabilizing, targets)
-    if stabilizing.any() and abs(np.linalg.det(C[np.ix_(stabilizing, stabilizing)])) < 1e-12:
+    law = FeedbackLaw(C, kp, kd, tracking, stabilizing, targets, frames)
+    if stabilizing.any() and not frames and \
+            abs(np.linalg.det(C[np.ix_(stabilizing, stabilizing)])) < 1e-12:
         raise ConfigError([("joints", "the stabilized quantities do not determine the "
                                       "stabilizing joints (their link_angle rows are dependent)")],
                           str(source) if source else None)
@@ -295,7 +306,8 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                                    np.array(is_goal, dtype=bool), error_mask,
                                    np.array(rates), L.update, L.damping, L.sensitivity,
                                    L.fd_epsilon)
-    loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator)
+    loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator,
+                      error_mask)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
                      init, source)
     if L.sensitivity == "casadi" and learner.n_learned:
@@ -367,6 +379,8 @@ class CycleOutcome:
         theta_next: Parameters after the cycle's update.
         q_end, v_end: Robot state after the cycle.
         fb_abs_mean: Mean |u_fb| per joint over the cycle [N m].
+        fb_stabilized: Sum over stabilizing controllers of their mean |output| [N m].
+        fb_error: Sum over joints of the mean |error signal| [N m].
         track_err_rms: RMS of forward minus system angle per joint [rad].
         max_error: Largest |reference - controlled quantity| over the cycle [rad].
         max_speed: Largest |joint velocity| over the cycle [rad/s].
@@ -383,6 +397,8 @@ class CycleOutcome:
     max_speed: float
     finite: bool
     trace: Callable[[], tuple[CycleLog, np.ndarray]]
+    fb_stabilized: float = 0.0
+    fb_error: float = 0.0
 
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
@@ -499,22 +515,24 @@ def _per_cycle(exp: Experiment, theta: np.ndarray, q, v) -> CycleOutcome:
     theta_next = theta
     if exp.learner.n_learned and np.all(np.isfinite(log.v)):
         J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
-        theta_next = exp.learner.step(theta, J, log.u_fb)
+        theta_next = exp.learner.step(theta, J, log.u_err)
     return _outcome(exp, log, Qd, theta_next)
 
 
 def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
     R, _ = exp.law.references(Qd, Qd)
     controlled = exp.law.tracking | exp.law.stabilizing
-    err = np.abs(R - exp.law.quantity(log.q))[:, controlled]
     with np.errstate(all="ignore"):
+        err = np.abs(wrap(R - exp.law.quantity(log.q)))[:, controlled]
         return CycleOutcome(
             theta_next, log.q_end, log.v_end, np.abs(log.u_fb).mean(axis=0),
             np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)),
             float(err.max()) if err.size else 0.0, float(np.abs(log.v).max()),
             bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
                  and np.all(np.isfinite(log.q_end))),
-            lambda: (log, Qd))
+            lambda: (log, Qd),
+            float(np.abs(log.u_rows[:, exp.law.stabilizing]).mean(axis=0).sum()),
+            float(np.abs(log.u_err).mean(axis=0).sum()))
 
 
 def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
@@ -530,10 +548,13 @@ def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
         def trace():
             out = compiled.full(theta, x0)
             X, U, Qd = out[7].T, out[8].T, out[9].T
-            return CycleLog(X[:, :nv], X[:, nv:], U, x_end[:nv], x_end[nv:]), Qd
+            return CycleLog(X[:, :nv], X[:, nv:], U, x_end[:nv], x_end[nv:], U,
+                            U * exp.learner.error_mask), Qd
 
         return CycleOutcome(theta_next, x_end[:nv], x_end[nv:], fb, rms, float(max_err[0]),
-                            float(max_speed[0]), finite, trace)
+                            float(max_speed[0]), finite, trace,
+                            float(fb[exp.law.stabilizing].sum()),
+                            float((fb * exp.learner.error_mask).sum()))
 
     return run
 
@@ -552,7 +573,7 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
     prims, n, nv = exp.primitives, exp.primitives.n_steps, exp.primitives.nv
     learner, law, dyn = exp.learner, exp.law, exp.dynamics
     theta = theta.copy()
-    Q, V, U, Qd, Vd = (np.empty((n, nv)) for _ in range(5))
+    Q, V, U, Urows, Uerr, Qd, Vd = (np.empty((n, nv)) for _ in range(7))
     for k in range(n):
         qd, vd, ad = np.empty(nv), np.empty(nv), np.empty(nv)
         Sq, Sv, Sa = {}, {}, {}
@@ -563,7 +584,7 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             Sq[i], Sv[i], Sa[i] = S[0], S[1], p.acceleration_sensitivity(S, k)
         Qd[k], Vd[k] = qd, vd
         R, Rd = law.references(qd[None], vd[None])
-        u_fb = law.feedback(q, v, R[0], Rd[0])
+        u_fb, u_rows, u_err = law.terms(q, v, R[0], Rd[0], exp.loop.error_rows)
         u_ff = dyn.inverse(qd, vd, ad)
         Dq, Dv, M = dyn.inverse_derivatives(qd, vd, ad)
         J = np.zeros((1, nv, learner.n_learned))
@@ -571,14 +592,14 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             sel = np.isin(rows, learner.learned)
             J[0][:, cols] = (np.outer(Dq[:, i], Sq[i][sel]) + np.outer(Dv[:, i], Sv[i][sel])
                              + np.outer(M[:, i], Sa[i][sel]))
-        Q[k], V[k], U[k] = q, v, u_fb
+        Q[k], V[k], U[k], Urows[k], Uerr[k] = q, v, u_fb, u_rows, u_err
         q, v = exp.loop.advance(q, v, exp.loop.actuated * (u_ff + u_fb))
         for i, p in prims.primitives.items():
             x, S = states[i]
             th = theta[prims.slices[i]]
             states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
-        theta = learner.step(theta, J, u_fb[None])
-    return CycleLog(Q, V, U, q, v), Qd, theta
+        theta = learner.step(theta, J, u_err[None])
+    return CycleLog(Q, V, U, q, v, Urows, Uerr), Qd, theta
 
 
 def _divergence(exp: Experiment, out: CycleOutcome) -> str | None:
@@ -600,9 +621,9 @@ def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
     row: dict[str, float] = {"seed": seed, "cycle": cycle}
     for i, name in enumerate(exp.joints):
         row[f"fb_abs_mean_{name}"] = float(fb[i])
-    row["fb_abs_mean_stabilized"] = float(fb[exp.law.stabilizing].sum())
+    row["fb_abs_mean_stabilized"] = out.fb_stabilized
     row["fb_abs_mean_total"] = float(fb.sum())
-    row["fb_abs_mean_error"] = float((fb * exp.learner.error_mask).sum())
+    row["fb_abs_mean_error"] = out.fb_error
     for i, name in enumerate(exp.joints):
         row[f"track_err_rms_{name}"] = float(rms[i])
     row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
@@ -642,7 +663,7 @@ def stabilization_errors(exp: Experiment, traces: dict[str, np.ndarray]) -> dict
             continue
         for kind in ("system", "forward"):
             y = exp.law.quantity(traces[f"last_q_{kind}"])[:, i]
-            out[f"{name}_{kind}"] = float(np.abs(y - exp.law.targets[i]).max())
+            out[f"{name}_{kind}"] = float(np.abs(wrap(y - exp.law.targets[i])).max())
     return out
 
 
