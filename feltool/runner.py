@@ -8,6 +8,7 @@ import os
 import queue
 import threading
 from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +44,8 @@ def default_out_dir(name: str, root: Path = Path("runs")) -> Path:
 
 def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] | None = None,
                    cycles: int | None = None, workers: int | None = None,
-                   show_progress: bool = True, figures: bool = True) -> dict[str, Any]:
+                   show_progress: bool = True, figures: bool = True,
+                   on_cycle: Callable | None = None) -> dict[str, Any]:
     """Run every seed (in parallel on all cores), write the run directory, return the summary.
 
     Args:
@@ -53,6 +55,8 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
         seeds: Seeds to run; default the config's.
         cycles: Learning cycles per seed; default the config's.
         workers: Processes; default all cores (at most one per seed).
+        on_cycle: Hook of :func:`run_seed` for the first seed (e.g. the live viewer's stream);
+            that seed then runs in this process, the others in worker processes meanwhile.
     """
     cfg = exp.config
     seeds = list(seeds if seeds is not None else cfg.seed_list)
@@ -73,7 +77,19 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
 
     results: list[SeedResult] = []
     try:
-        if workers == 1:
+        if on_cycle is not None:
+            first = seeds[0]
+
+            def in_main() -> SeedResult:
+                return run_seed(exp, first, cycles, lambda c, fb: on_progress(first, c, fb),
+                                on_cycle)
+
+            if len(seeds) == 1:
+                results = [in_main()]
+            else:
+                results = _run_pool(exp, raw, seeds[1:], cycles, max(1, workers - 1),
+                                    on_progress, in_main)
+        elif workers == 1:
             for seed in seeds:
                 results.append(run_seed(exp, seed, cycles,
                                         lambda c, fb, s=seed: on_progress(s, c, fb)))
@@ -91,7 +107,9 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
     return summary
 
 
-def _run_pool(exp, raw, seeds, cycles, workers, on_progress) -> list[SeedResult]:
+def _run_pool(exp, raw, seeds, cycles, workers, on_progress,
+              in_main: Callable[[], SeedResult] | None = None) -> list[SeedResult]:
+    """Seeds in worker processes; ``in_main`` (if given) runs here meanwhile."""
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     manager = ctx.Manager()
     messages = manager.Queue()
@@ -113,11 +131,29 @@ def _run_pool(exp, raw, seeds, cycles, workers, on_progress) -> list[SeedResult]
         with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                  initargs=(raw, source, messages)) as pool:
             futures = [pool.submit(_run_in_worker, s, cycles) for s in seeds]
-            return [f.result() for f in futures]
+            try:
+                mine = [in_main()] if in_main is not None else []
+                return mine + [f.result() for f in futures]
+            except BaseException:
+                _abort(pool, futures)  # do not wait for the other seeds on error or signal
+                raise
     finally:
         stop.set()
         thread.join(timeout=5)
         manager.shutdown()
+
+
+def _abort(pool: ProcessPoolExecutor, futures) -> None:
+    """Cancel pending seeds and end the pool's worker processes now."""
+    for f in futures:
+        f.cancel()
+    terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+    if terminate is not None:
+        terminate()
+        return
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        if proc.is_alive():
+            proc.terminate()
 
 
 def _progress_bar(total: int, name: str, enabled: bool):
