@@ -167,7 +167,8 @@ def load_rollouts(run_dir: Path, seed: int | None = None, cycles: Sequence[str] 
     run_dir = check_run_dir(run_dir)
     summary = json.loads((run_dir / "summary.json").read_text())
     entries = {s["seed"]: s for s in summary.get("seeds", [])}
-    have = sorted(int(p.stem.removeprefix("seed-")) for p in (run_dir / "traces").glob("seed-*.npz"))
+    have = sorted(int(p.stem.removeprefix("seed-"))
+                  for p in (run_dir / "traces").glob("seed-*.npz"))
     if seed is None:
         if not have:
             raise InputError(f"{run_dir}: no traces/seed-N.npz (every seed diverged before its "

@@ -7,8 +7,8 @@ import multiprocessing as mp
 import os
 import queue
 import threading
-from concurrent.futures import ProcessPoolExecutor
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 

@@ -96,6 +96,7 @@ def _meshcat():
 
 def _viewer_js() -> str:
     """The meshcat viewer bundle that ships inside the meshcat Python package."""
+    _meshcat()  # imports meshcat without its pyzmq deprecation warning
     import meshcat
 
     path = Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js"
