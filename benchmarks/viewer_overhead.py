@@ -5,8 +5,8 @@
 
 Runs the same seed alternately without a viewer and with a :class:`feltool.rollout.LiveStream`
 on a private meshcat server (30 frames per second, as ``--view``), and prints the median steps
-per second of each and the slowdown. With ``--browser`` a headless Chromium shows the page
-meanwhile, so the server really forwards every frame to a websocket client.
+per second of each, the slowdown, and the CPU share of the drawing thread. With ``--browser`` a
+headless Chromium shows the page meanwhile, so the server forwards every frame to a browser.
 """
 
 from __future__ import annotations
@@ -50,19 +50,28 @@ def main() -> None:
                  viewer.url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             time.sleep(3)
         try:
-            for _ in range(args.repeats):
-                plain.append(steps_per_s(exp, args.cycles))
-                with LiveStream(viewer, exp.config.dt, args.cycles, out=None) as stream:
-                    viewed.append(steps_per_s(exp, args.cycles, stream))
-                    frames = stream.frames_drawn
+            cpu = []
+            for r in range(args.repeats):
+                for viewing in ((False, True) if r % 2 else (True, False)):  # alternate order
+                    if not viewing:
+                        plain.append(steps_per_s(exp, args.cycles))
+                        continue
+                    with LiveStream(viewer, exp.config.dt, args.cycles, out=None) as stream:
+                        t0 = time.perf_counter()
+                        viewed.append(steps_per_s(exp, args.cycles, stream))
+                        cpu.append(stream.draw_cpu_s / (time.perf_counter() - t0))
+                        frames = stream.frames_drawn
         finally:
             if browser is not None:
                 browser.terminate()
                 browser.wait()
     a, b = statistics.median(plain), statistics.median(viewed)
+    paired = statistics.median(1 - v / p for p, v in zip(plain, viewed, strict=True))
     print(f"{args.config}: {args.cycles} cycles x {args.repeats}, median steps/s: without viewer "
           f"{a:.0f}, with --view {b:.0f} ({frames} frames in the last run): "
-          f"slowdown {100 * (1 - b / a):.1f} %")
+          f"slowdown {100 * (1 - b / a):.1f} % (median of paired runs "
+          f"{100 * paired:.1f} %); the drawing thread used "
+          f"{100 * statistics.median(cpu):.1f} % of a core")
 
 
 if __name__ == "__main__":

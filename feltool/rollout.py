@@ -8,7 +8,8 @@ Figs. A.2, A.3 and B.2 do:
   ``realtime`` it only keeps a reference to the newest cycle, and a background thread draws from
   it at most ``max_fps`` times per second, the frame chosen by the wall clock, so the motion
   plays at its true speed while learning runs at full speed (cost: one reference per cycle in the
-  learning loop, the drawing in the other thread). With ``realtime`` every cycle is played in
+  learning loop; the drawing, in the other thread, takes at most ``DRAW_BUDGET`` of wall time,
+  fewer frames when the machine is loaded). With ``realtime`` every cycle is played in
   full, paced to wall time, so learning runs at the robot's own pace.
 * :func:`write_rollout_html` writes ``rollout.html`` into a run directory: the first and the last
   learning cycle of one seed, from ``traces/seed-N.npz``, as one self-contained page.
@@ -34,6 +35,8 @@ __all__ = ["CYCLES", "LiveStream", "load_rollouts", "parse_cycles", "replay", "r
 
 CYCLES = ("first", "last")  # the cycles a run directory keeps traces of
 STATUS_EVERY_S = 1.0  # the terminal status line is printed at most this often [s]
+DRAW_BUDGET = 0.08  # at full speed, drawing (mostly waiting on the server) takes at most this
+# share of wall time: ~30 frames/s on an idle machine, fewer on a loaded one
 
 
 class LiveStream:
@@ -60,6 +63,7 @@ class LiveStream:
         self.label = label
         self.out = out
         self.frames_drawn = 0
+        self.draw_cpu_s = 0.0  # CPU time the drawing thread has used [s]
         self._latest: tuple[int, np.ndarray, np.ndarray, float] | None = None
         self._last_status = -np.inf
         self._stop = threading.Event()
@@ -99,15 +103,21 @@ class LiveStream:
     def _draw_loop(self) -> None:
         period = 1.0 / self.viewer.max_fps if self.viewer.max_fps > 0 else 1.0 / 30.0
         start = time.monotonic()
+        cpu0 = time.thread_time()
         try:
             while not self._stop.wait(period):
                 latest = self._latest
                 if latest is None:
                     continue
                 _, q, qf, _ = latest
-                k = int((time.monotonic() - start) / self.dt) % len(q)
+                t = time.monotonic()
+                k = int((t - start) / self.dt) % len(q)
                 self.viewer.show(q[k], qf[k], force=True)
                 self.frames_drawn += 1
+                self.draw_cpu_s = time.thread_time() - cpu0
+                # fewer frames when drawing is slow (a loaded machine): learning comes first
+                took = time.monotonic() - t
+                period = max(1.0 / max(self.viewer.max_fps, 1e-9), took / DRAW_BUDGET)
         except BaseException as exc:  # handed to the learning thread at its next cycle
             self._error = exc
 

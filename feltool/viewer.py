@@ -660,6 +660,10 @@ _PAGE = """<!DOCTYPE html>
 # the parent process is gone, however it went.
 _SERVER_CODE = r"""
 import os, sys
+try:
+    os.nice(10)  # the viewer yields the CPU to learning
+except OSError:
+    pass
 parent = int(sys.argv[1])
 zmq_url = sys.argv[2] or None
 import tornado.ioloop
