@@ -19,18 +19,22 @@ import numpy as np
 from feltool.errors import FeltoolError
 from feltool.rundir import atomic_write, load_npz, save_npz
 
-_STOP = {"requested": False}
+_STOP = {"requested": False, "signal": signal.SIGINT}
 
 
 class Interrupted(FeltoolError):
-    """A run stopped on request (SIGINT/SIGTERM) after saving its checkpoints."""
+    """A run stopped on request (SIGINT/SIGTERM) after saving its checkpoints; the exit code
+    is 128 + the signal's number (130 for Ctrl-C, 143 for SIGTERM)."""
 
-    exit_code = 130
+    @property
+    def exit_code(self) -> int:  # type: ignore[override]
+        return 128 + int(_STOP["signal"])
 
 
-def request_stop(*_: Any) -> None:
+def request_stop(signum: int = signal.SIGINT, *_: Any) -> None:
     """Ask running seeds to checkpoint and stop at the end of their current cycle."""
     _STOP["requested"] = True
+    _STOP["signal"] = signum
 
 
 def stop_requested() -> bool:

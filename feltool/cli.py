@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from pathlib import Path
 
@@ -76,12 +77,60 @@ def cmd_run(args: argparse.Namespace) -> int:
         overrides.append(f"seeds={parse_seeds(args.seeds)}")
     exp, raw = _load(args.config, overrides)
     out_dir = args.out or default_out_dir(exp.config.name)
+    viewer = stream = None
+    if args.view or args.zmq_url or args.realtime:
+        from feltool.rollout import LiveStream
+        from feltool.viewer import LiveViewer
+
+        _exit_on_sigterm()  # so that the viewer's server is stopped on SIGTERM too
+        viewer = LiveViewer(exp.robot, zmq_url=args.zmq_url)
     try:
-        summary = run_experiment(exp, raw, out_dir, workers=args.workers, show_progress=progress)
+        if viewer is not None:
+            stream = LiveStream(viewer, exp.config.dt, exp.config.sim.cycles,
+                                realtime=args.realtime, label=f"seed {exp.config.seed_list[0]}")
+        summary = run_experiment(exp, raw, out_dir, workers=args.workers, show_progress=progress,
+                                 on_cycle=stream)
     except Interrupted as exc:
         raise Interrupted(f"{exc}; continue with: feltool run --resume {out_dir}") from None
+    finally:
+        if stream is not None:
+            stream.close()
+        if viewer is not None:
+            viewer.close()
     print_summary(summary, out_dir)
+    if args.html:
+        from feltool.rollout import write_rollout_html
+
+        print(f"  rollout: {write_rollout_html(exp.robot, out_dir)}")
     return 1 if summary["aggregate"]["n_diverged"] else 0
+
+
+def _exit_on_sigterm() -> None:
+    """Turn SIGTERM into SystemExit(143), so that ``finally`` blocks (the viewer's server
+    shutdown) run as they do on Ctrl-C."""
+    def handler(signum, frame):
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, handler)
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from feltool.rollout import load_rollouts, parse_cycles, replay, run_robot, write_rollout_html
+
+    cycles = parse_cycles(args.cycles)
+    load_rollouts(args.run_dir, args.seed, cycles)  # bad input fails before a server starts
+    robot = run_robot(args.run_dir)
+    if args.html:
+        print(write_rollout_html(robot, args.run_dir, args.seed, cycles))
+        return 0
+    from feltool.viewer import LiveViewer
+
+    _exit_on_sigterm()
+    with LiveViewer(robot, zmq_url=args.zmq_url) as viewer:
+        if args.loops == 0:
+            print("feltool viewer: replaying until interrupted (Ctrl-C)", flush=True)
+        replay(viewer, args.run_dir, args.seed, cycles, loops=args.loops)
+    return 0
 
 
 def print_summary(summary: dict, out_dir: Path) -> None:
@@ -200,6 +249,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_positive_int, help="processes (default: all cores)")
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="no progress bar")
+    p.add_argument("--view", action="store_true",
+                   help="stream the first seed's rollout to a meshcat viewer in the browser "
+                   "(system robot and a ghost at the forward configuration)")
+    p.add_argument("--zmq-url", metavar="URL",
+                   help="use this running meshcat-server (implies --view; default: start one "
+                   "on 127.0.0.1 and stop it at the end)")
+    p.add_argument("--realtime", action="store_true",
+                   help="play every cycle at wall-clock speed (implies --view; learning runs "
+                   "at the robot's pace)")
+    p.add_argument("--html", action="store_true",
+                   help="write rollout.html (first and last cycle, no server needed) into the "
+                   "run directory")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("sweep", help="run a grid of config overrides over seeds")
@@ -215,6 +276,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", type=Path, metavar="SWEEP_DIR", help="continue a sweep")
     p.add_argument("--no-progress", dest="progress", action="store_false")
     p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("view", help="replay a recorded run in meshcat (or write rollout.html)")
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("--seed", type=int, help="seed to show (default: the first with traces)")
+    p.add_argument("--cycles", default="first,last",
+                   help="recorded cycles to show: first, last or first,last (default)")
+    p.add_argument("--html", action="store_true",
+                   help="write RUN_DIR/rollout.html instead of starting a viewer")
+    p.add_argument("--zmq-url", metavar="URL", help="use this running meshcat-server")
+    p.add_argument("--loops", type=int, default=0, metavar="N",
+                   help="play the cycles N times, then stop (default 0: until Ctrl-C)")
+    p.set_defaults(func=cmd_view)
 
     p = sub.add_parser("check", help="validate a config without running it")
     p.add_argument("config")

@@ -49,22 +49,26 @@ class Task:
     checkpoint_every: int = 10
 
 
-def run_task(task: Task):
-    """Run one task in this process (a pool or Dask worker, or the main process)."""
+def run_task(task: Task, on_cycle: Callable | None = None, put: Callable | None = None):
+    """Run one task in this process (a pool or Dask worker, or the main process).
+
+    ``on_cycle`` is passed to :func:`~feltool.experiment.run_seed`; ``put`` receives progress
+    items ``(key, seed, cycle, fb)`` (default: the worker's progress queue, if any)."""
     from feltool.experiment import build_experiment, run_seed
 
     ident = json.dumps(task.raw, sort_keys=True, default=str) + str(task.source)
     exp = _CACHE.get(ident)
     if exp is None:
         exp = _CACHE[ident] = build_experiment(task.raw, Path(task.source) if task.source else None)
-    messages = _PROGRESS.get("queue")
+    if put is None and _PROGRESS.get("queue") is not None:
+        put = _PROGRESS["queue"].put
     progress = None
-    if messages is not None:
+    if put is not None:
         def progress(cycle: int, fb: float) -> None:
-            messages.put((task.key, task.seed, cycle, fb))
+            put((task.key, task.seed, cycle, fb))
     checkpoint = (Checkpointer(Path(task.checkpoint_dir), task.seed, task.checkpoint_every)
                   if task.checkpoint_dir else None)
-    return run_seed(exp, task.seed, task.cycles, progress, checkpoint)
+    return run_seed(exp, task.seed, task.cycles, progress, checkpoint, on_cycle)
 
 
 def _init_local_worker(messages) -> None:
@@ -81,13 +85,18 @@ class LocalExecutor:
                                         initargs=(messages,))
 
     def run(self, tasks: list[Task]) -> Iterator[tuple[Task, Any]]:
-        """Yield ``(task, result)`` as tasks finish; a task's exception is raised when reached."""
+        """Submit every task now; the iterator yields ``(task, result)`` as tasks finish (a
+        task's exception is raised when reached)."""
         futures = {self.pool.submit(run_task, t): t for t in tasks}
-        pending = set(futures)
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                yield futures[fut], fut.result()
+
+        def results():
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    yield futures[fut], fut.result()
+
+        return results()
 
     def interrupt(self) -> None:
         """Ask every worker to checkpoint and stop."""
@@ -119,8 +128,7 @@ class DaskExecutor:
         from distributed import as_completed
 
         futures = {self.client.submit(run_task, t, pure=False, retries=3): t for t in tasks}
-        for fut in as_completed(futures):
-            yield futures[fut], fut.result()
+        return ((futures[fut], fut.result()) for fut in as_completed(futures))
 
     def interrupt(self) -> None:
         pass

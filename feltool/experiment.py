@@ -354,8 +354,14 @@ def reduce_robot(robot: Robot, locked: dict[str, float]) -> Robot:
     model = pin.buildReducedModel(robot.model, sorted(ids), q_ref)
     if model.nv == 0:
         raise ConfigError([("joints", "every joint is locked; nothing moves")])
-    return Robot(name=robot.name, model=model, source=robot.source, urdf_path=robot.urdf_path,
-                 package_dirs=robot.package_dirs)
+    reduced = Robot(name=robot.name, model=model, source=robot.source, urdf_path=robot.urdf_path,
+                    package_dirs=robot.package_dirs)
+    if robot._visual_model is not None:
+        # Visuals loaded with the robot (example-robot-data's, whose package:// meshes the URDF
+        # alone cannot resolve) are reduced with it, so viewers draw the reduced robot.
+        _, reduced._visual_model = pin.buildReducedModel(robot.model, robot._visual_model,
+                                                         sorted(ids), q_ref)
+    return reduced
 
 
 # -- running one seed ----------------------------------------------------------------------------
@@ -403,12 +409,19 @@ class CycleOutcome:
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
              progress: Callable[[int, float], None] | None = None,
-             checkpoint: Checkpointer | None = None) -> SeedResult:
+             checkpoint: Checkpointer | None = None,
+             on_cycle: Callable[[int, CycleLog, np.ndarray, float], None] | None = None
+             ) -> SeedResult:
     """Run one seed's learning and return its metrics (see the run directory's metrics.csv).
 
-    With a ``checkpoint``, the seed continues from its last checkpoint (bit-identically), saves
-    one every ``checkpoint.every`` cycles, and on a stop request saves and raises
-    :class:`~feltool.checkpoint.Interrupted`.
+    Args:
+        progress: Called after every cycle with (cycle, mean |error feedback| [N m]).
+        checkpoint: The seed continues from its last checkpoint (bit-identically), saves one
+            every ``checkpoint.every`` cycles, and on a stop request saves and raises
+            :class:`~feltool.checkpoint.Interrupted`.
+        on_cycle: Called after every cycle with (cycle, log, Qd, fb): the cycle's simulated
+            states ``log.q`` (n_steps x nv, [rad]), its forward (desired) trajectory ``Qd``
+            (n_steps x nv, [rad]) and fb as for ``progress`` (the live viewer streams these).
     """
     cfg = exp.config
     cycles = cycles or cfg.sim.cycles
@@ -444,6 +457,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         q, v = out.q_end, out.v_end
         if progress is not None:
             progress(cycle, row["fb_abs_mean_error"])
+        if on_cycle is not None:
+            on_cycle(cycle, *out.trace(), row["fb_abs_mean_error"])
         if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
             _save_checkpoint(checkpoint, cycle, theta, q, v, rows, history, traces,
                              wall_before + time.perf_counter() - t0, run_cycle)

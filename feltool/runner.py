@@ -15,6 +15,7 @@ import os
 import queue
 import signal
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ from feltool import __version__
 from feltool.checkpoint import Interrupted, request_stop, reset_stop, stop_requested
 from feltool.config import config_to_yaml
 from feltool.errors import InputError
-from feltool.executors import Task, inline, make_executor
+from feltool.executors import Task, inline, make_executor, run_task
 from feltool.experiment import Experiment, SeedResult, build_experiment, stabilization_errors
 from feltool.rundir import atomic_write, load_npz, save_npz, write_json, write_metrics
 
@@ -39,7 +40,8 @@ def default_out_dir(name: str, root: Path = Path("runs")) -> Path:
 def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] | None = None,
                    cycles: int | None = None, workers: int | None = None,
                    show_progress: bool = True, figures: bool = True,
-                   scheduler: str | None = None) -> dict[str, Any]:
+                   scheduler: str | None = None,
+                   on_cycle: Callable | None = None) -> dict[str, Any]:
     """Run every seed (in parallel on all cores, or on a Dask cluster), write the run
     directory, return the summary.
 
@@ -51,6 +53,9 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
         cycles: Learning cycles per seed; default the config's.
         workers: Local processes; default all cores (at most one per seed).
         scheduler: A Dask scheduler address (``tcp://HOST:8786``) to run the seeds there.
+        on_cycle: Hook of :func:`~feltool.experiment.run_seed` for the first pending seed (the
+            live viewer's stream); that seed then runs in this process, the others meanwhile in
+            the pool.
     """
     cfg = exp.config
     out_dir = Path(out_dir)
@@ -67,7 +72,7 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
              for s in seeds if s not in finished]
     results = dict(finished)
     for task, result in execute(tasks, workers, scheduler, cfg.name,
-                                sum(cycles for _ in tasks), show_progress):
+                                sum(cycles for _ in tasks), show_progress, on_cycle):
         save_seed_result(exp, out_dir, result)
         results[task.seed] = result
     summary = write_results(exp, out_dir, [results[s] for s in seeds])
@@ -93,14 +98,19 @@ def resume_run(run_dir: Path, workers: int | None = None, show_progress: bool = 
 
 
 def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name: str,
-            total_cycles: int, show_progress: bool):
+            total_cycles: int, show_progress: bool, on_cycle: Callable | None = None):
     """Run tasks inline, in a local pool or on Dask; yield ``(task, result)`` as they finish.
 
-    SIGINT/SIGTERM make running seeds checkpoint and stop; then :class:`Interrupted` is raised.
+    With ``on_cycle``, the first task runs in this process with that hook while the others
+    run in the pool. SIGINT/SIGTERM make running seeds checkpoint and stop; then
+    :class:`Interrupted` is raised.
     """
     if not tasks:
         return
-    workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
+    in_main = tasks[0] if on_cycle is not None else None
+    if in_main is not None:
+        tasks = tasks[1:]
+    workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(tasks))))
     bar = _progress_bar(total_cycles, name, show_progress)
     latest: dict[tuple, float] = {}
 
@@ -114,15 +124,18 @@ def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name:
     executor, manager, pump = None, None, None
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
 
-    def on_signal(*_):
-        request_stop()
+    def on_signal(signum, _frame):
+        request_stop(signum)
         if executor is not None:
             executor.interrupt()
 
     try:
         for sig in previous:
             signal.signal(sig, on_signal)
-        if workers == 1 and not (scheduler or os.environ.get("FELTOOL_SCHEDULER")):
+        if not tasks:
+            stream = iter(())
+        elif workers == 1 and not (scheduler or os.environ.get("FELTOOL_SCHEDULER")) \
+                and in_main is None:
             stream = inline(tasks, on_progress)
         else:
             messages = None
@@ -134,6 +147,11 @@ def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name:
             executor = make_executor(scheduler, workers, messages)
             stream = executor.run(tasks)
         interrupted = None
+        if in_main is not None:
+            try:
+                yield in_main, run_task(in_main, on_cycle, _progress_to(on_progress))
+            except Interrupted as exc:
+                interrupted = exc
         for item in _guarded(stream):
             if isinstance(item, Interrupted):
                 interrupted = item
@@ -152,6 +170,13 @@ def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name:
             manager.shutdown()
         if bar is not None:
             bar.close()
+
+
+def _progress_to(on_progress: Callable) -> Callable:
+    def put(item) -> None:
+        on_progress(*item)
+
+    return put
 
 
 def _guarded(stream):
