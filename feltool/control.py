@@ -44,8 +44,8 @@ class FeedbackLaw:
 
     def references(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """References :math:`r, \\dot r`, each ``(n, nv)``, for desired trajectories ``(n, nv)``."""
-        R = np.where(self.tracking, q_d, 0.0)
-        Rd = np.where(self.tracking, v_d, 0.0)
+        R = np.where(self.tracking, q_d @ self.C.T, 0.0)
+        Rd = np.where(self.tracking, v_d @ self.C.T, 0.0)
         R[:, self.stabilizing] = self.targets[self.stabilizing]
         return R, Rd
 

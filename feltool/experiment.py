@@ -20,7 +20,9 @@ from feltool.config import (ExperimentConfig, apply_overrides, parse_config, rea
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
+from feltool.events import check_events, plant_for_cycle
 from feltool.fel import FeedbackErrorLearner, feedforward
+from feltool.hybrid import Allocation, HybridLog, HybridLoop, Walker
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
 from feltool.simulate import ClosedLoop, CycleLog
@@ -41,6 +43,7 @@ class Experiment:
         loop: Closed-loop simulator.
         learner: The FEL learner.
         init: Per learned joint: ``(slice, weight std, goal centre, goal spread, kind)``.
+        hybrid: The step-by-step loop for walkers and allocated motors (else None).
     """
 
     config: ExperimentConfig
@@ -54,6 +57,7 @@ class Experiment:
     learner: FeedbackErrorLearner
     init: list[tuple[slice, float, float, float, str]] = field(default_factory=list)
     source: Path | None = None
+    hybrid: HybridLoop | None = None
 
     @property
     def learned_joints(self) -> list[str]:
@@ -287,8 +291,87 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                                    np.array(rates), L.update, L.damping, L.sensitivity,
                                    L.fd_epsilon)
     loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator)
+    src = str(source) if source else None
+    check_events(robot.model, cfg.events, src)
+    hybrid = None
+    if cfg.walking is not None or cfg.actuation is not None:
+        if L.step == "per_step":
+            raise ConfigError([("learning.step", "walking/actuation support only per_cycle "
+                                                 "learning")], src)
+        hybrid = HybridLoop(dynamics, law, _allocation(cfg, robot, joints, src),
+                            _walker(cfg, robot, joints, src), actuated, dt, cfg.sim.substeps,
+                            cfg.sim.integrator)
     return Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
-                      init, source)
+                      init, source, hybrid)
+
+
+def _joint_row(names: dict[str, float] | list[str], joints: list[str], where: str,
+               src: str | None) -> np.ndarray:
+    """Row ``a`` with ``a @ q`` = the weighted sum of the named joints' angles."""
+    items = names.items() if isinstance(names, dict) else [(n, 1.0) for n in names]
+    row = np.zeros(len(joints))
+    for name, coef in items:
+        if name not in joints:
+            raise ConfigError([(where, f"'{name}' is not a configured (unlocked) joint; "
+                                       f"joints: {', '.join(joints)}")], src)
+        row[joints.index(name)] += coef
+    return row
+
+
+def _allocation(cfg: ExperimentConfig, robot: Robot, joints: list[str],
+                src: str | None) -> Allocation | None:
+    if cfg.actuation is None:
+        return None
+    B = np.stack([_joint_row(m, joints, f"actuation.motors.{name}", src)
+                  for name, m in cfg.actuation.motors.items()], axis=1)
+    if np.linalg.matrix_rank(B) < B.shape[1]:
+        raise ConfigError([("actuation.motors", "the motors' rows are linearly dependent")], src)
+    return Allocation(B, cfg.actuation.allocation, robot.model)
+
+
+def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
+            src: str | None) -> Walker | None:
+    w = cfg.walking
+    if w is None:
+        return None
+    missing = [n for n in joints if n not in w.absolute]
+    if missing:
+        raise ConfigError([("walking.absolute", "needs every configured joint; missing: "
+                                                + ", ".join(missing))], src)
+    A = np.stack([_joint_row(w.absolute[n], joints, f"walking.absolute.{n}", src)
+                  for n in joints])
+    if abs(np.linalg.det(A)) < 1e-12:
+        raise ConfigError([("walking.absolute", "the absolute angles do not determine the "
+                                                "joint angles (singular map)")], src)
+    Pi = np.eye(len(joints))
+    for i, name in enumerate(w.swap):
+        if name not in joints:
+            raise ConfigError([(f"walking.swap.{i}", f"'{name}' is not a configured joint")], src)
+    a, b = joints.index(w.swap[0]), joints.index(w.swap[1])
+    Pi[[a, b]] = Pi[[b, a]]
+    free, foot = None, None
+    if w.impact == "rigid" and w.contact_frame is None:
+        raise ConfigError([("walking.contact_frame", "impact: rigid needs the swing foot's "
+                                                     "frame")], src)
+    if w.contact_frame is not None:
+        # The same robot with its base freed in the sagittal plane (x, z): q_e = (x, z, q).
+        root = pin.JointModelComposite(pin.JointModelPX())
+        root.addJoint(pin.JointModelPZ())
+        free = None if robot.urdf_path is None else pin.buildModelFromUrdf(str(robot.urdf_path),
+                                                                           root)
+        if free is None or free.nv != robot.model.nv + 2:
+            raise ConfigError([("walking.contact_frame", "needs a URDF robot with no locked "
+                                                         "joints")], src)
+        if not free.existFrame(w.contact_frame):
+            raise ConfigError([("walking.contact_frame", f"the robot has no frame "
+                                                         f"'{w.contact_frame}'")], src)
+        foot = free.getFrameId(w.contact_frame)
+    fall_row = (_joint_row(w.fall.link_angle, joints, "walking.fall.link_angle", src)
+                if w.fall else None)
+    return Walker(A, Pi, _joint_row(w.guard.link_angle, joints, "walking.guard.link_angle", src),
+                  w.guard.value, 1.0 if w.guard.direction == "rising" else -1.0,
+                  tuple(w.guard.window), w.steps_per_cycle, w.impact, fall_row,
+                  w.fall.max_abs if w.fall else np.inf, free, foot)
 
 
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:
@@ -338,13 +421,30 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     n = exp.primitives.n_steps
     Qd, Vd, Ad = exp.primitives.desired(theta)
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    if exp.hybrid is not None:
+        q, v = exp.hybrid.initial_state(Qd, Vd)
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
     diverged, reason = False, None
     t0 = time.perf_counter()
     steps = 0
     rmp_states = _limit_cycle_states(exp, theta)
+    plant, loop, impacts = exp.dynamics, exp.loop, {"guard": 0, "clock": 0}
     for cycle in range(1, cycles + 1):
-        if cfg.learning.step == "per_step":
+        changed = plant_for_cycle(exp.robot.model, cfg.events, cycle, cfg.backend)
+        if changed is not None:
+            plant = changed
+            loop = ClosedLoop(plant, exp.law, exp.loop.actuated, exp.loop.dt, exp.loop.substeps,
+                              exp.loop.integrator)
+        if exp.hybrid is not None:
+            P, Pv, Pa = exp.primitives.desired(theta)
+            log = exp.hybrid.run_cycle(plant, q, v, P, Pv, Pa)
+            Qd, Vd, Ad = log.Qd, log.Vd, log.Ad
+            for _, by_guard, _ in log.impacts:
+                impacts["guard" if by_guard else "clock"] += 1
+            derivs = None
+            if not log.fall and exp.learner.n_learned and cfg.learning.sensitivity == "exact":
+                _, *derivs = exp.hybrid.jacobian_derivatives(log)
+        elif cfg.learning.step == "per_step":
             log, Qd, Vd, theta_next = _per_step_cycle(exp, theta, q, v, rmp_states)
         else:
             Qd, Vd, Ad = exp.primitives.desired(theta)
@@ -354,13 +454,16 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
                 u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
             else:
                 u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
-            log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+            log = loop.run_cycle(q, v, R, Rd, u_ff)
         steps += n
-        reason = _divergence(exp, log, Qd)
+        reason = getattr(log, "fall", None) or _divergence(exp, log, Qd)
         if reason:
             diverged = True
             break
         if cfg.learning.step == "per_cycle":
+            if exp.hybrid is not None and derivs is None:
+                raise ConfigError([("learning.sensitivity", "walking/actuation supports only "
+                                                            "'exact'")])
             J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
             theta_next = exp.learner.step(theta, J, log.u_fb)
         row = _metrics(exp, seed, cycle, log, Qd, theta)
@@ -377,6 +480,12 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     if rows:
         traces.update(_trace("last", *last))
     summary = _seed_summary(exp, seed, rows, diverged, reason, wall, steps)
+    if exp.hybrid is not None and exp.hybrid.walker is not None:
+        summary["guard_impacts"], summary["clock_impacts"] = impacts["guard"], impacts["clock"]
+    if exp.hybrid is not None and rows and not diverged and cfg.walking is not None:
+        from feltool.gait import poincare
+
+        summary["poincare"] = poincare(exp, theta, q, v, plant)
     params = exp.split_parameters(theta)
     hist = np.array(history)
     for name in exp.learned_joints:

@@ -1,0 +1,126 @@
+"""The three-link biped: Pinocchio against the corrected closed forms of App. B, the one
+absolute <-> relative conversion, the impact maps, and the fall check."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from feltool.experiment import load_experiment, run_seed
+from feltool.robot import load_robot
+
+from .conftest import CONFIGS
+
+M_LEG, M_H, M_T, R, L, G = 15.0, 10.0, 40.0, 1.0, 1.0, 9.8  # Table B.1
+T = np.array([[1.0, 0, 0], [1, 1, 0], [1, 0, 1]])  # theta = T q (thesis absolute from relative)
+
+
+def closed_form(theta, dtheta):
+    """Eq. B.2-B.4 in absolute angles, with the two errata corrected: c13 uses dtheta3 (not
+    dtheta1) and the torso's gravity entry is -g M_T l sin(theta3) (not +1/2 g M_T l sin)."""
+    t1, t2, t3 = theta
+    c12, c13, s12, s13 = np.cos(t1 - t2), np.cos(t1 - t3), np.sin(t1 - t2), np.sin(t1 - t3)
+    M = np.array([[(1.25 * M_LEG + M_H + M_T) * R**2, -0.5 * M_LEG * R**2 * c12, M_T * R * L * c13],
+                  [-0.5 * M_LEG * R**2 * c12, 0.25 * M_LEG * R**2, 0.0],
+                  [M_T * R * L * c13, 0.0, M_T * L**2]])
+    C = np.array([[0.0, -0.5 * M_LEG * R**2 * s12 * dtheta[1], M_T * R * L * s13 * dtheta[2]],
+                  [0.5 * M_LEG * R**2 * s12 * dtheta[0], 0.0, 0.0],
+                  [-M_T * R * L * s13 * dtheta[0], 0.0, 0.0]])
+    g = np.array([-0.5 * G * (2 * M_H + 3 * M_LEG + 2 * M_T) * R * np.sin(t1),
+                  0.5 * G * M_LEG * R * np.sin(t2),
+                  -G * M_T * L * np.sin(t3)])
+    return M, C @ dtheta, g
+
+
+def test_pinocchio_matches_corrected_appendix_b(rng):
+    robot = load_robot("three_link_biped")
+    robot.set_gravity(G)
+    model, data = robot.model, robot.model.createData()
+    for _ in range(200):
+        q, v = rng.uniform(-1.2, 1.2, 3), rng.normal(0, 3, 3)
+        M_abs, c_abs, g_abs = closed_form(T @ q, T @ v)
+        M = pin.crba(model, data, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        g = pin.computeGeneralizedGravity(model, data, q)
+        c = pin.rnea(model, data, q, v, np.zeros(3)) - g
+        # Generalized forces transform with T^T (constant T): M_pin = T^T M_abs T, etc.
+        np.testing.assert_allclose(M, T.T @ M_abs @ T, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(c, T.T @ c_abs, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(g, T.T @ g_abs, atol=1e-9, rtol=0)
+
+
+def test_thesis_printed_forms_are_wrong_where_the_errata_say(rng):
+    robot = load_robot("three_link_biped")
+    robot.set_gravity(G)
+    model, data = robot.model, robot.model.createData()
+    q = np.array([0.1, -0.3, 0.6])
+    g = pin.computeGeneralizedGravity(model, data, q)
+    printed = np.array([0.0, 0.0, 0.5 * G * M_T * L * np.sin((T @ q)[2])])
+    assert abs((np.linalg.solve(T.T, g))[2] - printed[2]) > 1.0
+
+
+@pytest.fixture(scope="module")
+def biped():
+    return load_experiment(CONFIGS / "biped_torso.yaml")
+
+
+def test_absolute_relative_conversion_is_the_appendix_map(biped):
+    W = biped.hybrid.walker
+    np.testing.assert_allclose(W.A, T)
+    q = np.array([0.1, -0.25, 0.4])
+    np.testing.assert_allclose(W.relative(W.absolute(q)), q)
+    # Relabelling exchanges the legs' absolute angles and keeps the torso's: X+ = [q2, q1, q3].
+    th = W.absolute(q)
+    q_plus, _ = W.apply_impact(q, np.zeros(3))
+    np.testing.assert_allclose(W.absolute(q_plus), th[[1, 0, 2]])
+
+
+def test_rigid_impact_is_inelastic_and_conserves_momentum_about_the_new_foot(biped, rng):
+    W = biped.hybrid.walker
+    model, data = W.free_model, W.free_model.createData()
+    W.impact = "rigid"
+    try:
+        for _ in range(5):
+            th1 = rng.uniform(0.1, 0.3)
+            q = W.relative(np.array([th1, -th1, rng.uniform(0.3, 0.7)]))  # both feet down
+            v = rng.normal(0, 1.0, 3)
+            foot = np.array([2 * R * np.sin(th1), 0.0, 0.0])
+
+            def momentum_about_foot(qq, vv, p):
+                qe, ve = np.r_[0.0, 0.0, qq], np.r_[0.0, 0.0, vv]
+                h = pin.computeCentroidalMomentum(model, data, qe, ve)
+                com = pin.centerOfMass(model, data, qe)
+                return h.angular + np.cross(com - p, h.linear), 0.5 * ve @ pin.crba(model, data, qe) @ ve
+
+            L_before, E_before = momentum_about_foot(q, v, foot)
+            # The post-impact state in the NEW labels has its stance foot at the origin; map it
+            # back to absolute angular velocities to compare in the same (old) frame.
+            q_plus, v_plus = W.apply_impact(q, v)
+            th_dot_new = W.absolute(v_plus)
+            th_dot_old = th_dot_new[[1, 0, 2]]
+            v_old = W.relative(th_dot_old)
+            qe, ve = np.r_[0.0, 0.0, q], np.r_[0.0, 0.0, v_old]
+            # The old-labelled model's base must move so that the swing foot is at rest.
+            pin.computeJointJacobians(model, data, qe)
+            pin.updateFramePlacements(model, data)
+            J = pin.getFrameJacobian(model, data, W.foot_frame,
+                                     pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[[0, 2]]
+            base = -np.linalg.solve(J[:, :2], J[:, 2:] @ v_old)
+            ve = np.r_[base, v_old]
+            h = pin.computeCentroidalMomentum(model, data, qe, ve)
+            com = pin.centerOfMass(model, data, qe)
+            L_after = h.angular + np.cross(com - foot, h.linear)
+            E_after = 0.5 * ve @ pin.crba(model, data, qe) @ ve
+            np.testing.assert_allclose(L_after, L_before, atol=1e-9)
+            assert E_after <= E_before + 1e-9
+    finally:
+        W.impact = "relabel"
+
+
+def test_a_fall_stops_the_seed_as_diverged():
+    exp = load_experiment(CONFIGS / "biped_torso.yaml",
+                          ["walking.fall.max_abs=0.05", "sim.cycles=3"])
+    result = run_seed(exp, 0, 3)
+    assert result.summary["diverged"] is True
+    assert "fell" in result.summary["diverged_reason"]
