@@ -160,9 +160,10 @@ class LearningConfig(Strict):
     rates: Rates = Field(default_factory=Rates, description="Learning rates.")
     damping: PositiveFloat = Field(1.0e-2, description="Levenberg-Marquardt damping, relative to "
                                    "the mean diagonal of J^T J [-].")
-    sensitivity: Literal["exact", "finite_difference"] = Field("exact", description="How "
-        "d u_ff / d theta is computed: exact (RMP sensitivity x RNEA derivatives) or the "
-        "thesis's numerical differentiation.")
+    sensitivity: Literal["exact", "finite_difference", "casadi"] = Field("exact", description=
+        "How d u_ff / d theta is computed: exact (RMP sensitivity x Pinocchio's RNEA "
+        "derivatives), the thesis's numerical differentiation, or CasADi's algorithmic "
+        "differentiation through the RMP and a symbolic RNEA.")
     fd_epsilon: PositiveFloat = Field(1.0e-6, description="Finite-difference step, relative "
                                       "to max(1, |theta_i|) [-].")
 
@@ -211,6 +212,8 @@ class WalkingConfig(Strict):
     steps_per_cycle: int = Field(2, ge=1, le=100, description="Steps (impacts) per cycle.")
     guard: Guard = Field(description="When a step ends.")
     fall: FallCheck | None = Field(None, description="When the walker has fallen.")
+    poincare: bool = Field(True, description="After learning, find the step-to-step map's fixed "
+                           "point and its eigenvalues (summary.json: poincare).")
 
 
 class ActuationConfig(Strict):
@@ -263,8 +266,9 @@ class ExperimentConfig(Strict):
                        "the config file), or example-robot-data:NAME.")
     gravity: FiniteFloat | list[FiniteFloat] = Field(9.8, description="Gravity in [m/s^2]: a "
         "magnitude along the world's -z, or a 3-vector. The thesis uses 9.8.")
-    backend: Literal["pinocchio"] = Field("pinocchio", description="Dynamics backend of the "
-                                          "known models.")
+    backend: Literal["pinocchio", "casadi", "compiled"] = Field("pinocchio", description=
+        "Known models: Pinocchio; CasADi symbolic expressions built from the same model; or "
+        "compiled: a whole learning cycle generated to C and compiled (cached on disk).")
     period_s: PositiveFloat = Field(description="Period T of the rhythmic motion in [s].")
     sim: SimConfig = Field(default_factory=SimConfig, description="Simulation settings.")
     primitives: PrimitiveConfig = Field(default_factory=PrimitiveConfig,

@@ -16,13 +16,13 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from feltool.config import (ExperimentConfig, apply_overrides, parse_config, read_yaml)
+from feltool.config import ExperimentConfig, apply_overrides, parse_config, read_yaml
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.events import check_events, plant_for_cycle
 from feltool.fel import FeedbackErrorLearner, feedforward
-from feltool.hybrid import Allocation, HybridLog, HybridLoop, Walker
+from feltool.hybrid import Allocation, HybridLoop, Walker
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
 from feltool.simulate import ClosedLoop, CycleLog
@@ -70,6 +70,14 @@ class Experiment:
     @property
     def error_joints(self) -> list[str]:
         return [n for n, m in zip(self.joints, self.learner.error_mask) if m > 0]
+
+    def compiled_cycle(self):
+        """The compiled learning cycle (built and compiled on first use, cached on disk)."""
+        if getattr(self, "_compiled", None) is None:
+            from feltool.compiled import CompiledCycle
+
+            self._compiled = CompiledCycle(self)
+        return self._compiled
 
     def initial_parameters(self, seed: int) -> np.ndarray:
         """RMP parameters at the start of learning; random draws come from ``seed`` only."""
@@ -199,7 +207,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     locked.update({n: jc.posture for n, jc in cfg.joints.items() if jc.role == "locked"})
     robot = reduce_robot(full_robot, locked)
     robot.set_gravity(cfg.gravity)
-    dynamics = make_dynamics(robot.model, cfg.backend)
+    dynamics = make_dynamics(robot.model, "casadi" if cfg.backend == "casadi" else "pinocchio")
     nv = robot.model.nv
     joints = [""] * nv
     for name in robot.joint_names:
@@ -298,11 +306,41 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         if L.step == "per_step":
             raise ConfigError([("learning.step", "walking/actuation support only per_cycle "
                                                  "learning")], src)
+        if L.sensitivity != "exact":
+            raise ConfigError([("learning.sensitivity", "walking/actuation support only "
+                                                        "'exact'")], src)
+        if cfg.backend == "compiled":
+            raise ConfigError([("backend", "walking/actuation need the pinocchio or casadi "
+                                           "backend (the compiled cycle has no hybrid loop)")], src)
         hybrid = HybridLoop(dynamics, law, _allocation(cfg, robot, joints, src),
                             _walker(cfg, robot, joints, src), actuated, dt, cfg.sim.substeps,
                             cfg.sim.integrator)
-    return Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
-                      init, source, hybrid)
+    exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
+                     init, source, hybrid)
+    if L.sensitivity == "casadi" and learner.n_learned:
+        from feltool.compiled import feedforward_jacobian
+
+        learner.set_casadi_jacobian(_BufferedFn(feedforward_jacobian(exp)))
+    if cfg.backend == "compiled":
+        from feltool.compiled import check_supported
+
+        if cfg.events:
+            raise ConfigError([("events", "backend 'compiled' simulates the known model only; "
+                                          "use pinocchio or casadi for events")], src)
+        check_supported(exp)
+    return exp
+
+
+class _BufferedFn:
+    """A one-input CasADi function called with low overhead (see feltool.compiled)."""
+
+    def __init__(self, fn):
+        from feltool.compiled import _Buffered
+
+        self._call = _Buffered(fn)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self._call(x)[0]
 
 
 def _joint_row(names: dict[str, float] | list[str], joints: list[str], where: str,
@@ -412,6 +450,36 @@ class SeedResult:
     traces: dict[str, np.ndarray]
 
 
+@dataclass
+class CycleOutcome:
+    """What the learner and the metrics need from one cycle, whichever backend ran it.
+
+    Attributes:
+        theta_next: Parameters after the cycle's update.
+        q_end, v_end: Robot state after the cycle.
+        fb_abs_mean: Mean |u_fb| per joint over the cycle [N m].
+        track_err_rms: RMS of forward minus system angle per joint [rad].
+        max_error: Largest |reference - controlled quantity| over the cycle [rad].
+        max_speed: Largest |joint velocity| over the cycle [rad/s].
+        finite: Whether every state stayed finite.
+        trace: Returns ``(CycleLog, Qd)`` of the cycle (computed on demand).
+        fall: Why a walker fell during the cycle (hybrid loop), or None.
+        impacts: ``(step, by_guard, swing-foot x [m])`` of each impact (walkers).
+    """
+
+    theta_next: np.ndarray
+    q_end: np.ndarray
+    v_end: np.ndarray
+    fb_abs_mean: np.ndarray
+    track_err_rms: np.ndarray
+    max_error: float
+    max_speed: float
+    finite: bool
+    trace: Callable[[], tuple[CycleLog, np.ndarray]]
+    fall: str | None = None
+    impacts: list = field(default_factory=list)
+
+
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
              progress: Callable[[int, float], None] | None = None) -> SeedResult:
     """Run one seed's learning and return its metrics (see the run directory's metrics.csv)."""
@@ -419,70 +487,42 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     cycles = cycles or cfg.sim.cycles
     theta = exp.initial_parameters(seed)
     n = exp.primitives.n_steps
-    Qd, Vd, Ad = exp.primitives.desired(theta)
+    Qd, Vd, _ = exp.primitives.desired(theta)
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
     if exp.hybrid is not None:
         q, v = exp.hybrid.initial_state(Qd, Vd)
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
-    diverged, reason = False, None
+    reason = None
+    run_cycle = _cycle_runner(exp, theta)
     t0 = time.perf_counter()
-    steps = 0
-    rmp_states = _limit_cycle_states(exp, theta)
-    plant, loop, impacts = exp.dynamics, exp.loop, {"guard": 0, "clock": 0}
+    plant, impacts = exp.dynamics, {"guard": 0, "clock": 0}
     for cycle in range(1, cycles + 1):
-        changed = plant_for_cycle(exp.robot.model, cfg.events, cycle, cfg.backend)
-        if changed is not None:
-            plant = changed
-            loop = ClosedLoop(plant, exp.law, exp.loop.actuated, exp.loop.dt, exp.loop.substeps,
-                              exp.loop.integrator)
-        if exp.hybrid is not None:
-            P, Pv, Pa = exp.primitives.desired(theta)
-            log = exp.hybrid.run_cycle(plant, q, v, P, Pv, Pa)
-            Qd, Vd, Ad = log.Qd, log.Vd, log.Ad
-            for _, by_guard, _ in log.impacts:
-                impacts["guard" if by_guard else "clock"] += 1
-            derivs = None
-            if not log.fall and exp.learner.n_learned and cfg.learning.sensitivity == "exact":
-                _, *derivs = exp.hybrid.jacobian_derivatives(log)
-        elif cfg.learning.step == "per_step":
-            log, Qd, Vd, theta_next = _per_step_cycle(exp, theta, q, v, rmp_states)
-        else:
-            Qd, Vd, Ad = exp.primitives.desired(theta)
-            R, Rd = exp.law.references(Qd, Vd)
-            derivs = None
-            if exp.learner.n_learned and cfg.learning.sensitivity == "exact":
-                u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
-            else:
-                u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
-            log = loop.run_cycle(q, v, R, Rd, u_ff)
-        steps += n
-        reason = getattr(log, "fall", None) or _divergence(exp, log, Qd)
+        plant = _plant_for_cycle(exp, cycle) or plant
+        out = run_cycle(theta, q, v, plant)
+        for _, by_guard, _ in out.impacts:
+            impacts["guard" if by_guard else "clock"] += 1
+        reason = _divergence(exp, out)
         if reason:
-            diverged = True
             break
-        if cfg.learning.step == "per_cycle":
-            if exp.hybrid is not None and derivs is None:
-                raise ConfigError([("learning.sensitivity", "walking/actuation supports only "
-                                                            "'exact'")])
-            J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
-            theta_next = exp.learner.step(theta, J, log.u_fb)
-        row = _metrics(exp, seed, cycle, log, Qd, theta)
+        row = _metrics(exp, seed, cycle, out, theta)
         rows.append(row)
         if cycle == 1:
-            traces.update(_trace("first", log, Qd))
-        last = (log, Qd)
-        theta = theta_next
+            traces.update(_trace("first", *out.trace()))
+        last = out
+        theta = out.theta_next
         history.append(theta[exp.learner.learned].copy())
-        q, v = log.q_end, log.v_end
+        q, v = out.q_end, out.v_end
         if progress is not None:
             progress(cycle, row["fb_abs_mean_error"])
     wall = time.perf_counter() - t0
-    if rows:
-        traces.update(_trace("last", *last))
-    summary = _seed_summary(exp, seed, rows, diverged, reason, wall, steps)
+    if last is not None:
+        traces.update(_trace("last", *last.trace()))
+    steps = n * (len(rows) + (1 if reason else 0))
+    summary = _seed_summary(exp, seed, rows, reason, wall, steps)
     if exp.hybrid is not None and exp.hybrid.walker is not None:
         summary["guard_impacts"], summary["clock_impacts"] = impacts["guard"], impacts["clock"]
-    if exp.hybrid is not None and rows and not diverged and cfg.walking is not None:
+    if exp.hybrid is not None and rows and reason is None and cfg.walking is not None \
+            and cfg.walking.poincare:
         from feltool.gait import poincare
 
         summary["poincare"] = poincare(exp, theta, q, v, plant)
@@ -496,6 +536,106 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     return SeedResult(seed, rows, summary, params, traces)
 
 
+def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOutcome]:
+    """The function ``(theta, q, v, plant) -> CycleOutcome`` that runs one cycle for this
+    experiment's backend and update mode; ``plant`` is the simulated world (the known model, or
+    the one an event changed)."""
+    if exp.config.backend == "compiled":
+        run = _compiled_runner(exp)
+        return lambda theta, q, v, plant: run(theta, q, v)
+    if exp.hybrid is not None:
+        return lambda theta, q, v, plant: _hybrid_cycle(exp, theta, q, v, plant)
+    loops: dict[int, ClosedLoop] = {}
+
+    def loop_for(plant: Dynamics) -> ClosedLoop:
+        if plant is exp.dynamics:
+            return exp.loop
+        if id(plant) not in loops:
+            loops.clear()
+            loops[id(plant)] = ClosedLoop(plant, exp.law, exp.loop.actuated, exp.loop.dt,
+                                          exp.loop.substeps, exp.loop.integrator)
+        return loops[id(plant)]
+
+    if exp.config.learning.step == "per_step":
+        states = _limit_cycle_states(exp, theta0)
+        return lambda theta, q, v, plant: _outcome(
+            exp, *_per_step_cycle(exp, theta, q, v, states, loop_for(plant)))
+    return lambda theta, q, v, plant: _per_cycle(exp, theta, q, v, loop_for(plant))
+
+
+def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
+    """The simulated world from ``cycle`` on if an event starts then, else None."""
+    backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
+    return plant_for_cycle(exp.robot.model, exp.config.events, cycle, backend)
+
+
+def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop) -> CycleOutcome:
+    """One cycle on the limit cycle of the current parameters, then one update (eq. 3.6)."""
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    derivs = None
+    if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
+        u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+    else:
+        u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
+    log = loop.run_cycle(q, v, R, Rd, u_ff)
+    theta_next = theta
+    if exp.learner.n_learned and np.all(np.isfinite(log.v)):
+        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_fb)
+    return _outcome(exp, log, Qd, theta_next)
+
+
+def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> CycleOutcome:
+    """One cycle of the hybrid loop (walkers, allocated motors), then one update (eq. 3.6);
+    the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d."""
+    P, Pv, Pa = exp.primitives.desired(theta)
+    log = exp.hybrid.run_cycle(plant, q, v, P, Pv, Pa)
+    theta_next = theta
+    if log.fall is None and exp.learner.n_learned:
+        _, *derivs = exp.hybrid.jacobian_derivatives(log)
+        J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_fb)
+    out = _outcome(exp, log, log.Qd, theta_next)
+    out.fall, out.impacts = log.fall, list(log.impacts)
+    return out
+
+
+def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
+    R, _ = exp.law.references(Qd, Qd)
+    controlled = exp.law.tracking | exp.law.stabilizing
+    err = np.abs(R - exp.law.quantity(log.q))[:, controlled]
+    with np.errstate(all="ignore"):
+        return CycleOutcome(
+            theta_next, log.q_end, log.v_end, np.abs(log.u_fb).mean(axis=0),
+            np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)),
+            float(err.max()) if err.size else 0.0, float(np.abs(log.v).max()),
+            bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
+                 and np.all(np.isfinite(log.q_end))),
+            lambda: (log, Qd))
+
+
+def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
+    compiled = exp.compiled_cycle()
+    nv = exp.robot.model.nv
+
+    def run(theta, q, v) -> CycleOutcome:
+        x0 = np.concatenate([q, v])
+        x_end, fb, rms, grad, hess, max_err, max_speed = compiled.lean(theta, x0)
+        finite = bool(np.all(np.isfinite(x_end)) and np.isfinite(max_speed[0]))
+        theta_next = exp.learner.apply(theta, grad, hess) if finite else theta
+
+        def trace():
+            out = compiled.full(theta, x0)
+            X, U, Qd = out[7].T, out[8].T, out[9].T
+            return CycleLog(X[:, :nv], X[:, nv:], U, x_end[:nv], x_end[nv:]), Qd
+
+        return CycleOutcome(theta_next, x_end[:nv], x_end[nv:], fb, rms, float(max_err[0]),
+                            float(max_speed[0]), finite, trace)
+
+    return run
+
+
 def _limit_cycle_states(exp: Experiment, theta: np.ndarray) -> dict[int, tuple]:
     """Each RMP's state (q, qdot) and sensitivity at phase 0 of its limit cycle."""
     return {i: (np.array([p.Xq[0] @ theta[exp.primitives.slices[i]],
@@ -504,9 +644,12 @@ def _limit_cycle_states(exp: Experiment, theta: np.ndarray) -> dict[int, tuple]:
             for i, p in exp.primitives.primitives.items()}
 
 
-def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, tuple]):
+def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, tuple],
+                    loop: ClosedLoop | None = None):
     """One cycle with an update after every step; the RMP states (updated in place in
-    ``states``) run on continuously, their sensitivities propagated alongside."""
+    ``states``) run on continuously, their sensitivities propagated alongside. ``loop``
+    simulates the world (default ``exp.loop``)."""
+    loop = loop or exp.loop
     prims, n, nv = exp.primitives, exp.primitives.n_steps, exp.primitives.nv
     learner, law, dyn = exp.learner, exp.law, exp.dynamics
     theta = theta.copy()
@@ -530,41 +673,39 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             J[0][:, cols] = (np.outer(Dq[:, i], Sq[i][sel]) + np.outer(Dv[:, i], Sv[i][sel])
                              + np.outer(M[:, i], Sa[i][sel]))
         Q[k], V[k], U[k] = q, v, u_fb
-        q, v = exp.loop.advance(q, v, exp.loop.actuated * (u_ff + u_fb))
+        q, v = loop.advance(q, v, loop.actuated * (u_ff + u_fb))
         for i, p in prims.primitives.items():
             x, S = states[i]
             th = theta[prims.slices[i]]
             states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
         theta = learner.step(theta, J, u_fb[None])
-    return CycleLog(Q, V, U, q, v), Qd, Vd, theta
+    return CycleLog(Q, V, U, q, v), Qd, theta
 
 
-def _divergence(exp: Experiment, log, Qd: np.ndarray) -> str | None:
+def _divergence(exp: Experiment, out: CycleOutcome) -> str | None:
     sim = exp.config.sim
-    if not (np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
-            and np.all(np.isfinite(log.q_end))):
+    if out.fall:
+        return out.fall
+    if not out.finite:
         return "the state became non-finite"
-    vmax = float(np.abs(log.v).max())
-    if vmax > sim.max_velocity:
-        return f"a joint velocity reached {vmax:.3g} rad/s (sim.max_velocity = {sim.max_velocity})"
-    R, _ = exp.law.references(Qd, Qd)
-    err = np.abs(R - exp.law.quantity(log.q))[:, exp.law.tracking | exp.law.stabilizing]
-    if err.size and err.max() > sim.max_error_rad:
-        return (f"a controlled quantity was {err.max():.3g} rad from its reference "
+    if out.max_speed > sim.max_velocity:
+        return (f"a joint velocity reached {out.max_speed:.3g} rad/s "
+                f"(sim.max_velocity = {sim.max_velocity})")
+    if out.max_error > sim.max_error_rad:
+        return (f"a controlled quantity was {out.max_error:.3g} rad from its reference "
                 f"(sim.max_error_rad = {sim.max_error_rad}): the robot fell")
     return None
 
 
-def _metrics(exp: Experiment, seed: int, cycle: int, log, Qd: np.ndarray,
+def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
              theta: np.ndarray) -> dict[str, float]:
-    fb = np.abs(log.u_fb).mean(axis=0)
+    fb, rms = out.fb_abs_mean, out.track_err_rms
     row: dict[str, float] = {"seed": seed, "cycle": cycle}
     for i, name in enumerate(exp.joints):
         row[f"fb_abs_mean_{name}"] = float(fb[i])
     row["fb_abs_mean_stabilized"] = float(fb[exp.law.stabilizing].sum())
     row["fb_abs_mean_total"] = float(fb.sum())
     row["fb_abs_mean_error"] = float((fb * exp.learner.error_mask).sum())
-    rms = np.sqrt(np.mean((Qd - log.q) ** 2, axis=0))
     for i, name in enumerate(exp.joints):
         row[f"track_err_rms_{name}"] = float(rms[i])
     row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
@@ -575,7 +716,7 @@ def _trace(which: str, log: CycleLog, Qd: np.ndarray) -> dict[str, np.ndarray]:
     return {f"{which}_q_system": log.q, f"{which}_q_forward": Qd, f"{which}_u_fb": log.u_fb}
 
 
-def _seed_summary(exp: Experiment, seed: int, rows, diverged: bool, reason: str | None,
+def _seed_summary(exp: Experiment, seed: int, rows, reason: str | None,
                   wall: float, steps: int) -> dict[str, Any]:
     fb = [r["fb_abs_mean_error"] for r in rows]
     fb0 = fb[0] if fb else None
@@ -589,7 +730,7 @@ def _seed_summary(exp: Experiment, seed: int, rows, diverged: bool, reason: str 
     out = {"seed": seed, "cycles": len(rows), "fb_initial": fb0, "fb_final": fb[-1] if fb else None,
            "fb_ratio": (fb[-1] / fb0) if fb and fb0 else None, "converged_cycle": converged,
            "wall_s": round(wall, 4), "steps_per_s": round(steps / wall, 1) if wall > 0 else None,
-           "diverged": diverged}
+           "diverged": reason is not None}
     if reason:
         out["diverged_reason"] = f"seed {seed}, cycle {len(rows) + 1}: {reason}"
     return out

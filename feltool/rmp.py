@@ -147,7 +147,8 @@ class RhythmicPrimitive:
         return self.Phi @ x + self.Gamma[k % self.n_steps] @ theta
 
     def step_sensitivity(self, S: np.ndarray, k: int) -> np.ndarray:
-        """Sensitivity :math:`\\partial x_{k+1}/\\partial\\theta` from :math:`\\partial x_k/\\partial\\theta`."""
+        """Sensitivity :math:`\\partial x_{k+1}/\\partial\\theta` from
+        :math:`\\partial x_k/\\partial\\theta` (the linear sensitivity recursion)."""
         return self.Phi @ S + self.Gamma[k % self.n_steps]
 
     def acceleration(self, x: np.ndarray, theta: np.ndarray, k: int) -> float:

@@ -166,7 +166,7 @@ def _check_urdf_xml(text: str, where: str) -> None:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
         line, col = exc.position
-        raise RobotError(f"{where}:{line}:{col}: URDF is not well-formed XML ({exc.msg if hasattr(exc, 'msg') else exc})") from None
+        raise RobotError(f"{where}:{line}:{col}: URDF is not well-formed XML ({exc})") from None
     if root.tag != "robot":
         raise RobotError(f"{where}: root element is <{root.tag}>, a URDF needs <robot>")
     links = {link.get("name"): link for link in root.findall("link")}

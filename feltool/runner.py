@@ -15,8 +15,13 @@ import numpy as np
 
 from feltool import __version__
 from feltool.config import config_to_yaml
-from feltool.experiment import (Experiment, SeedResult, build_experiment, run_seed,
-                                stabilization_errors)
+from feltool.experiment import (
+    Experiment,
+    SeedResult,
+    build_experiment,
+    run_seed,
+    stabilization_errors,
+)
 from feltool.rundir import save_npz, write_json, write_metrics
 
 _WORKER: dict[str, Any] = {}
