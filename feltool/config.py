@@ -66,12 +66,18 @@ class PrimitiveOverride(Strict):
 
 
 class SineDemo(Strict):
-    """A demonstrated sine, fitted into the joint's RMP by least squares (eq. 2.4)."""
+    """A demonstrated sine (optionally with higher harmonics), fitted into the joint's RMP by
+    least squares (eq. 2.4): q(t) = mean + amplitude sin(w s + phase) + sum_k A_k sin(k w s + phi_k)
+    with w = 2 pi / T, s = t - delay T and k = 2, 3, ... for the entries of ``harmonics``."""
 
     kind: Literal["sine"] = Field(description="Demonstration kind.")
     mean: FiniteFloat = Field(0.0, description="Mean (the RMP goal) in [rad].")
     amplitude: FiniteFloat = Field(description="Amplitude in [rad].")
     phase: FiniteFloat = Field(0.0, description="Phase offset in [rad] at the start of a cycle.")
+    harmonics: list[tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=list, description=
+        "Higher harmonics k = 2, 3, ...: [amplitude in [rad], phase in [rad]] each.")
+    delay: FiniteFloat = Field(0.0, description="Delay of the whole demonstration, as a "
+                               "fraction of the period (e.g. 0.5 for a walker's other leg) [-].")
 
 
 class Gains(Strict):
@@ -111,6 +117,9 @@ class JointConfig(Strict):
     role: Literal["track", "stabilize", "passive", "locked"] = Field(description="track: PD on "
         "the joint's RMP (eq. 2.7); stabilize: PD holding a target (§3.1); passive: unactuated; "
         "locked: removed from the model at `posture`.")
+    link_angle: list[str] | None = Field(None, min_length=1, description="track only: the "
+        "tracked quantity is this link's absolute angle, the sum of these joints' angles "
+        "(reference: the same sum of the desired joint angles); default the joint's own angle.")
     demo: SineDemo | None = Field(None, description="Demonstration fitted into the RMP (eq. 2.4).")
     gains: Gains | None = Field(None, description="Feedback gains (track and stabilize).")
     target: Target | None = Field(None, description="Stabilized quantity (stabilize only).")
@@ -125,6 +134,8 @@ class JointConfig(Strict):
             problems.append(f"a '{self.role}' joint needs 'gains'")
         if self.role == "stabilize" and self.target is None:
             problems.append("a 'stabilize' joint needs 'target'")
+        if self.role != "track" and self.link_angle is not None:
+            problems.append(f"'link_angle' is only for 'track' joints, not '{self.role}'")
         if self.role != "stabilize" and self.target is not None:
             problems.append(f"'target' is only for 'stabilize' joints, not '{self.role}'")
         if self.role in ("track", "stabilize", "passive") and self.demo is None and (

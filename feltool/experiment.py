@@ -232,7 +232,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         prims[i] = prim
         if jc.demo is not None:
             d = jc.demo
-            q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t)
+            q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t, d.harmonics, d.delay)
             thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=d.mean)
         else:
             thetas[i] = np.zeros(prim.n_params)
@@ -247,7 +247,13 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         jc = cfg.joints[name]
         actuated[i] = jc.role != "passive"
         if jc.role == "track":
-            tracking[i], C[i, i] = True, 1.0
+            tracking[i] = True
+            for other in jc.link_angle or [name]:
+                if other not in joints:
+                    raise ConfigError([(f"joints.{name}.link_angle", f"'{other}' is not a "
+                                        "configured (unlocked) joint")],
+                                      str(source) if source else None)
+                C[i, joints.index(other)] += 1.0
         elif jc.role == "stabilize":
             stabilizing[i] = True
             for other in jc.target.link_angle or [name]:
