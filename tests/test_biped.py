@@ -124,3 +124,46 @@ def test_a_fall_stops_the_seed_as_diverged():
     result = run_seed(exp, 0, 3)
     assert result.summary["diverged"] is True
     assert "fell" in result.summary["diverged_reason"]
+
+
+@pytest.fixture(scope="module")
+def walked():
+    """Seed 0 learning the torso for 20 cycles while walking, with the Poincaré analysis."""
+    exp = load_experiment(CONFIGS / "biped_torso.yaml")
+    return exp, run_seed(exp, 0, 20)
+
+
+def test_the_biped_walks_and_fel_reduces_the_summed_feedback(walked):
+    exp, result = walked
+    s = result.summary
+    assert s["diverged"] is False and s["cycles"] == 20
+    assert s["fb_ratio"] <= 0.4  # full run: <= 0.16 after 150 cycles (docs/biped.md)
+    # The system torso stays within 0.01 rad of pi/6 over the last cycle.
+    from feltool.experiment import stabilization_errors
+
+    assert stabilization_errors(exp, result.traces)["torso_hip_system"] < 0.01
+    # Every impact came at the nominal step time (2 per cycle).
+    assert s["guard_impacts"] + s["clock_impacts"] == 40
+
+
+def test_poincare_map_has_a_stable_fixed_point(walked):
+    _, result = walked
+    p = result.summary["poincare"]
+    assert p["fixed_point_found"] and p["fixed_point_residual"] < 1e-8
+    assert p["stable"] and max(p["eigenvalues_abs"]) < 1.0
+    assert p["impacts_per_cycle"] == 2
+    # Two steps of about 2 r sin(pi/18) each (legs at about +-pi/18 at the impacts).
+    assert 0.8 * 4 * np.sin(np.pi / 18) < p["stride_length_m"] < 1.1 * 4 * np.sin(np.pi / 18)
+    assert p["speed_m_per_s"] == pytest.approx(p["stride_length_m"] / 1.0)
+
+
+def test_biped_slope_event_feedback_rises_then_returns():
+    exp = load_experiment(CONFIGS / "biped_torso.yaml",
+                          ["walking.poincare=false",
+                           "events=[{cycle: 30, kind: slope, angle: 0.05}]"])
+    result = run_seed(exp, 0, 60)
+    assert result.summary["diverged"] is False
+    fb = np.array([r["fb_abs_mean_error"] for r in result.rows])
+    before = fb[28]  # cycle 29, the last before the 2.9 degree downhill slope
+    assert fb[29] > 1.2 * before and fb[29:].max() > 1.8 * before  # the feedback rises
+    assert fb[-1] <= 2.0 * before and fb[-1] < 0.8 * fb[29:].max()  # and FEL brings it down
