@@ -167,3 +167,16 @@ def test_biped_slope_event_feedback_rises_then_returns():
     before = fb[28]  # cycle 29, the last before the 2.9 degree downhill slope
     assert fb[29] > 1.2 * before and fb[29:].max() > 1.8 * before  # the feedback rises
     assert fb[-1] <= 2.0 * before and fb[-1] < 0.8 * fb[29:].max()  # and FEL brings it down
+
+
+def test_compiled_backend_refuses_walkers_and_events():
+    from feltool.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        load_experiment(CONFIGS / "biped_torso.yaml", ["backend=compiled"])
+    assert "backend" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        load_experiment(CONFIGS / "two_link_standard.yaml",
+                        ["backend=compiled", "events=[{cycle: 3, kind: payload, frame: tip, "
+                                             "mass: 0.2}]"])
+    assert "events" in str(err.value)
