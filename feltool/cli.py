@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from pathlib import Path
 
 from feltool import __version__
+from feltool.checkpoint import Interrupted
 from feltool.errors import FeltoolError, InputError
 
 
@@ -57,8 +59,17 @@ def _load(config: str, overrides: list[str]):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from feltool.runner import default_out_dir, run_experiment
+    from feltool.runner import default_out_dir, resume_run, run_experiment
 
+    progress = args.progress and sys.stderr.isatty()
+    if args.resume is not None:
+        if args.config is not None:
+            raise InputError("give either CONFIG or --resume RUN_DIR, not both")
+        summary = resume_run(args.resume, args.workers, progress)
+        print_summary(summary, args.resume)
+        return 1 if summary["aggregate"]["n_diverged"] else 0
+    if args.config is None:
+        raise InputError("run needs a CONFIG (or --resume RUN_DIR)")
     overrides = list(args.set or [])
     if args.cycles is not None:
         overrides.append(f"sim.cycles={args.cycles}")
@@ -66,10 +77,60 @@ def cmd_run(args: argparse.Namespace) -> int:
         overrides.append(f"seeds={parse_seeds(args.seeds)}")
     exp, raw = _load(args.config, overrides)
     out_dir = args.out or default_out_dir(exp.config.name)
-    summary = run_experiment(exp, raw, out_dir, workers=args.workers,
-                             show_progress=args.progress and sys.stderr.isatty())
+    viewer = stream = None
+    if args.view or args.zmq_url or args.realtime:
+        from feltool.rollout import LiveStream
+        from feltool.viewer import LiveViewer
+
+        _exit_on_sigterm()  # so that the viewer's server is stopped on SIGTERM too
+        viewer = LiveViewer(exp.robot, zmq_url=args.zmq_url)
+    try:
+        if viewer is not None:
+            stream = LiveStream(viewer, exp.config.dt, exp.config.sim.cycles,
+                                realtime=args.realtime, label=f"seed {exp.config.seed_list[0]}")
+        summary = run_experiment(exp, raw, out_dir, workers=args.workers, show_progress=progress,
+                                 on_cycle=stream)
+    except Interrupted as exc:
+        raise Interrupted(f"{exc}; continue with: feltool run --resume {out_dir}") from None
+    finally:
+        if stream is not None:
+            stream.close()
+        if viewer is not None:
+            viewer.close()
     print_summary(summary, out_dir)
+    if args.html:
+        from feltool.rollout import write_rollout_html
+
+        print(f"  rollout: {write_rollout_html(exp.robot, out_dir)}")
     return 1 if summary["aggregate"]["n_diverged"] else 0
+
+
+def _exit_on_sigterm() -> None:
+    """Turn SIGTERM into SystemExit(143), so that ``finally`` blocks (the viewer's server
+    shutdown) run as they do on Ctrl-C."""
+    def handler(signum, frame):
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, handler)
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from feltool.rollout import load_rollouts, parse_cycles, replay, run_robot, write_rollout_html
+
+    cycles = parse_cycles(args.cycles)
+    load_rollouts(args.run_dir, args.seed, cycles)  # bad input fails before a server starts
+    robot = run_robot(args.run_dir)
+    if args.html:
+        print(write_rollout_html(robot, args.run_dir, args.seed, cycles))
+        return 0
+    from feltool.viewer import LiveViewer
+
+    _exit_on_sigterm()
+    with LiveViewer(robot, zmq_url=args.zmq_url) as viewer:
+        if args.loops == 0:
+            print("feltool viewer: replaying until interrupted (Ctrl-C)", flush=True)
+        replay(viewer, args.run_dir, args.seed, cycles, loops=args.loops)
+    return 0
 
 
 def print_summary(summary: dict, out_dir: Path) -> None:
@@ -90,6 +151,34 @@ def print_summary(summary: dict, out_dir: Path) -> None:
           f"{agg['n_seeds']} seeds" + (f", mean cycle {agg['converged_cycle_mean']:.1f}, "
                                         f"max {conv}" if conv is not None else ""))
     print(f"  diverged: {agg['n_diverged']}   run directory: {out_dir}")
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from feltool.runner import default_out_dir
+    from feltool.sweep import parse_grid, run_sweep
+
+    progress = args.progress and sys.stderr.isatty()
+    if args.resume is not None:
+        out_dir, config, grid = args.resume, None, None
+        if not (out_dir / "sweep.json").is_file():
+            raise InputError(f"{out_dir}: no sweep.json, so not a sweep directory to resume")
+    else:
+        if args.config is None:
+            raise InputError("sweep needs a CONFIG (or --resume SWEEP_DIR)")
+        config, grid = args.config, parse_grid(args.grid or [])
+        out_dir = args.out or default_out_dir(Path(config).stem + "-sweep")
+    seeds = parse_seeds(args.seeds) if args.seeds else None
+    try:
+        rows = run_sweep(config, grid, out_dir, seeds, args.cycles, args.workers, args.scheduler,
+                         progress)
+    except Interrupted as exc:
+        raise Interrupted(f"{exc}; continue with: feltool sweep --resume {out_dir}") from None
+    points = len({r["point"] for r in rows})
+    conv = sum(r["converged_cycle"] is not None for r in rows)
+    div = sum(bool(r["diverged"]) for r in rows)
+    print(f"sweep: {points} points x {len(rows) // max(points, 1)} seeds; converged {conv}, "
+          f"diverged {div}; {out_dir / 'sweep.csv'}")
+    return 0
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -149,7 +238,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run an experiment over its seeds, write a run directory")
-    p.add_argument("config", help="experiment YAML, or the name of a bundled config")
+    p.add_argument("config", nargs="?", help="experiment YAML, or the name of a bundled config")
+    p.add_argument("--resume", type=Path, metavar="RUN_DIR",
+                   help="continue an interrupted run where it stopped")
     p.add_argument("--seeds", help="seeds to run, e.g. 0-19 or 0,3,7 (default: the config's)")
     p.add_argument("--cycles", type=_positive_int, help="learning cycles per seed")
     p.add_argument("--out", type=Path, help="run directory (default runs/<name>-<UTC time>)")
@@ -158,7 +249,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_positive_int, help="processes (default: all cores)")
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="no progress bar")
+    p.add_argument("--view", action="store_true",
+                   help="stream the first seed's rollout to a meshcat viewer in the browser "
+                   "(system robot and a ghost at the forward configuration)")
+    p.add_argument("--zmq-url", metavar="URL",
+                   help="use this running meshcat-server (implies --view; default: start one "
+                   "on 127.0.0.1 and stop it at the end)")
+    p.add_argument("--realtime", action="store_true",
+                   help="play every cycle at wall-clock speed (implies --view; learning runs "
+                   "at the robot's pace)")
+    p.add_argument("--html", action="store_true",
+                   help="write rollout.html (first and last cycle, no server needed) into the "
+                   "run directory")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("sweep", help="run a grid of config overrides over seeds")
+    p.add_argument("config", nargs="?", help="experiment YAML, or the name of a bundled config")
+    p.add_argument("--grid", action="append", metavar="A.B.C=V1,V2",
+                   help="a swept field and its values (repeatable; the product is run)")
+    p.add_argument("--seeds", help="seeds per point, e.g. 0-9")
+    p.add_argument("--cycles", type=_positive_int, help="learning cycles per seed")
+    p.add_argument("--out", type=Path, help="sweep directory (default runs/<name>-sweep-<time>)")
+    p.add_argument("--workers", type=_positive_int, help="local processes (default: all cores)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:8786",
+                   help="run on a Dask cluster (default $FELTOOL_SCHEDULER, else locally)")
+    p.add_argument("--resume", type=Path, metavar="SWEEP_DIR", help="continue a sweep")
+    p.add_argument("--no-progress", dest="progress", action="store_false")
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("view", help="replay a recorded run in meshcat (or write rollout.html)")
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("--seed", type=int, help="seed to show (default: the first with traces)")
+    p.add_argument("--cycles", default="first,last",
+                   help="recorded cycles to show: first, last or first,last (default)")
+    p.add_argument("--html", action="store_true",
+                   help="write RUN_DIR/rollout.html instead of starting a viewer")
+    p.add_argument("--zmq-url", metavar="URL", help="use this running meshcat-server")
+    p.add_argument("--loops", type=int, default=0, metavar="N",
+                   help="play the cycles N times, then stop (default 0: until Ctrl-C)")
+    p.set_defaults(func=cmd_view)
 
     p = sub.add_parser("check", help="validate a config without running it")
     p.add_argument("config")

@@ -87,14 +87,36 @@ class Gains(Strict):
     kd: NonNegFloat = Field(description="Derivative gain K_D in [N m s/rad].")
 
 
+Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+
+
 class Target(Strict):
-    """What a stabilizing controller holds (§3.1): a joint angle, or a link's absolute angle
-    given as the sum of the joint angles from the base to that link (planar chains)."""
+    """What a stabilizing controller holds (§3.1): a joint angle; a link's absolute angle given
+    as the sum of the joint angles from the base to that link (planar chains); or the
+    orientation of any frame about a world axis (its torque then acts through the frame
+    Jacobian on every joint that moves the frame)."""
 
     value: FiniteFloat = Field(description="Target value of the stabilized quantity in [rad].")
     link_angle: list[str] | None = Field(None, min_length=1, description="Joints whose angles "
                                          "add up to the stabilized link's absolute angle, e.g. "
                                          "[shoulder, elbow] for q1 + q2; default the joint itself.")
+    frame: str | None = Field(None, description="A URDF link/frame name: stabilize the angle of "
+                              "its `vector` about the world axis `about`, measured from `zero`.")
+    vector: Vector3 = Field([0.0, 0.0, 1.0], description="Direction in the frame's own "
+                            "coordinates whose orientation is held (with `frame`).")
+    about: Vector3 = Field([0.0, 1.0, 0.0], description="World axis the angle turns about, "
+                           "counter-clockwise (with `frame`).")
+    zero: Vector3 | None = Field(None, description="World direction where the angle is 0 "
+                                 "(with `frame`); default +z, or +x when `about` is vertical.")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> Target:
+        if self.frame is not None and self.link_angle is not None:
+            raise ValueError("give either 'link_angle' or 'frame', not both")
+        for name in ("vector", "about") + (("zero",) if self.zero is not None else ()):
+            if sum(x * x for x in getattr(self, name)) < 1e-12:
+                raise ValueError(f"'{name}' must not be the zero vector")
+        return self
 
 
 class LearnConfig(Strict):
@@ -267,6 +289,14 @@ class EventConfig(Strict):
         return self
 
 
+class SweepConfig(Strict):
+    """A grid for ``feltool sweep`` (ignored by ``feltool run``)."""
+
+    grid: dict[str, list[Any]] = Field(default_factory=dict, description="Dotted config paths "
+                                       "and the values to try, e.g. {learning.rates.weights: "
+                                       "[0.1, 0.2]}; the product of all is run.")
+
+
 class ExperimentConfig(Strict):
     """One FEL experiment: a robot, the roles of its joints, and how to learn."""
 
@@ -295,6 +325,7 @@ class ExperimentConfig(Strict):
                                       "at given cycles (adaptation experiments).")
     seeds: int | list[Annotated[int, Field(ge=0)]] = Field(20, description="Number of seeds "
                                                           "(0..n-1) or an explicit list.")
+    sweep: SweepConfig | None = Field(None, description="Grid for feltool sweep.")
 
     @field_validator("gravity")
     @classmethod
@@ -312,13 +343,19 @@ class ExperimentConfig(Strict):
             raise ValueError("needs at least one seed")
         return s
 
-    @model_validator(mode="after")
-    def _cross_checks(self) -> ExperimentConfig:
+    def problems(self) -> list[tuple[str, str]]:
+        """Checks across fields, as ``(yaml_path, message)`` pairs."""
         steps = self.period_s * self.sim.rate_hz
         if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 2:
-            raise ValueError(f"period_s * sim.rate_hz = {steps:g} samples per cycle; it must be "
-                             "a whole number of at least 2")
-        return self
+            return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle; it "
+                                 "must be a whole number of at least 2")]
+        bases = {"primitives.basis": self.primitives.basis}
+        for name, jc in self.joints.items():
+            if jc.primitive is not None and jc.primitive.basis is not None:
+                bases[f"joints.{name}.primitive.basis"] = jc.primitive.basis
+        return [(where, f"{basis} basis functions but only {round(steps)} samples per cycle "
+                        "(period_s * sim.rate_hz); use at most that many")
+                for where, basis in bases.items() if basis > round(steps)]
 
     @property
     def seed_list(self) -> list[int]:
@@ -342,10 +379,17 @@ def read_yaml(path: Path) -> dict[str, Any]:
         text = Path(path).read_text()
     except FileNotFoundError:
         raise ConfigError([("", "config file not found")], str(path)) from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError:
+        raise ConfigError([("", "the file is binary (not UTF-8 text), not a YAML config")],
+                          str(path)) from None
+    except OSError as exc:
         raise ConfigError([("", f"cannot read config: {exc}")], str(path)) from None
+    if "\x00" in text:
+        raise ConfigError([("", "the file is binary (not UTF-8 text), not a YAML config")],
+                          str(path))
     try:
-        data = yaml.safe_load(text)
+        data = yaml.safe_load(text)  # safe: no object construction
+        duplicates = _duplicate_keys(yaml.compose(text, Loader=yaml.SafeLoader))
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -353,7 +397,29 @@ def read_yaml(path: Path) -> dict[str, Any]:
         raise ConfigError([("", f"{where}not valid YAML ({problem})")], str(path)) from None
     if not isinstance(data, dict):
         raise ConfigError([("", "the config must be a YAML mapping of fields")], str(path))
+    if duplicates:
+        raise ConfigError(duplicates, str(path))
     return data
+
+
+def _duplicate_keys(node, path: str = "") -> list[tuple[str, str]]:
+    """Keys given twice in a mapping (plain PyYAML keeps the last one silently, so two roles
+    for one joint would go unnoticed), with their YAML paths."""
+    problems = []
+    if isinstance(node, yaml.MappingNode):
+        seen = set()
+        for key_node, value_node in node.value:
+            key = key_node.value
+            where = f"{path}.{key}" if path else str(key)
+            if key in seen:
+                problems.append((where, f"given twice (line {key_node.start_mark.line + 1}); "
+                                        "each key may appear once"))
+            seen.add(key)
+            problems += _duplicate_keys(value_node, where)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            problems += _duplicate_keys(item, f"{path}.{i}")
+    return problems
 
 
 def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
@@ -412,9 +478,13 @@ def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
 def parse_config(data: dict[str, Any], source: str | None = None) -> ExperimentConfig:
     """Validate a raw mapping; raises :class:`ConfigError` listing every problem."""
     try:
-        return ExperimentConfig.model_validate(data)
+        cfg = ExperimentConfig.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(_pydantic_problems(exc), source) from None
+    problems = cfg.problems()
+    if problems:
+        raise ConfigError(problems, source)
+    return cfg
 
 
 def config_to_yaml(cfg: ExperimentConfig) -> str:

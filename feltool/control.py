@@ -17,9 +17,63 @@ Passive joints have zero rows.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+import pinocchio as pin
+
+
+class FrameAngle:
+    r"""The orientation of a link frame about a world axis, as a stabilized quantity.
+
+    With :math:`v = R(q)\,v_f` the frame's vector ``vector`` in world coordinates, ``about`` the
+    world axis :math:`a` and ``zero`` the world direction :math:`z_0 \perp a` where the angle is 0,
+
+    .. math::
+
+        y = \operatorname{atan2}\big((z_0 \times v)\cdot a,\; z_0 \cdot v\big),
+        \qquad \dot y = j_y(q)\,\dot q,\qquad
+        j_y = \frac{((z_0\cdot v)\,(a \times z_0) - ((a\times z_0)\cdot v)\,z_0)^\top}{\rho^2}
+              \,(-[v]_\times J_\omega(q))
+
+    (counter-clockwise about :math:`a`; :math:`J_\omega` the frame's angular Jacobian in world
+    axes, :math:`\rho^2` the squared length of :math:`v` projected on the plane). Its feedback
+    torque acts on the joints through :math:`j_y^\top`.
+    """
+
+    def __init__(self, model: pin.Model, frame: str, vector, about, zero=None):
+        self.model, self.data = model, model.createData()
+        self.frame_id = model.getFrameId(frame)
+        self.vector = np.asarray(vector, float) / np.linalg.norm(vector)
+        a = np.asarray(about, float)
+        self.about = a / np.linalg.norm(a)
+        if zero is None:
+            zero = [0.0, 0.0, 1.0] if abs(self.about[2]) < 0.9 else [1.0, 0.0, 0.0]
+        z = np.asarray(zero, float)
+        z = z - (z @ self.about) * self.about
+        self.zero = z / np.linalg.norm(z)
+        self.ortho = np.cross(self.about, self.zero)
+
+    def value(self, q: np.ndarray) -> float:
+        """The angle in [rad] at configuration q."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        v = self.data.oMf[self.frame_id].rotation @ self.vector
+        return float(np.arctan2(self.ortho @ v, self.zero @ v))
+
+    def value_and_jacobian(self, q: np.ndarray) -> tuple[float, np.ndarray]:
+        """The angle in [rad] and its Jacobian :math:`j_y` (nv,) in [rad/rad]."""
+        J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id,
+                                     pin.LOCAL_WORLD_ALIGNED)
+        v = self.data.oMf[self.frame_id].rotation @ self.vector
+        c, s = self.zero @ v, self.ortho @ v
+        dv_dq = -pin.skew(v) @ J[3:]
+        grad = (c * self.ortho - s * self.zero) / (c * c + s * s)
+        return float(np.arctan2(s, c)), grad @ dv_dq
+
+
+def wrap(angle):
+    """Angle(s) wrapped into (-pi, pi]."""
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
 
 @dataclass
@@ -41,6 +95,34 @@ class FeedbackLaw:
     tracking: np.ndarray
     stabilizing: np.ndarray
     targets: np.ndarray
+    frames: dict[int, FrameAngle] = field(default_factory=dict)
+
+    @property
+    def linear(self) -> bool:
+        """True when every quantity is a linear combination of joint angles."""
+        return not self.frames
+
+    def terms(self, q: np.ndarray, v: np.ndarray, r: np.ndarray, rd: np.ndarray,
+              error_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(u_fb, u_rows, u_err)`` at one state: the joint torques, each controller's own
+        output (for a frame angle: its torque about the axis), and the joint torques of the
+        controllers in ``error_rows`` (the learning signal). A linear controller acts on its own
+        joint; a frame angle's torque acts through :math:`j_y^\\top`."""
+        u_rows = self.kp * (r - self.C @ q) + self.kd * (rd - self.C @ v)
+        jacs = {}
+        for row, frame in self.frames.items():
+            y, jac = frame.value_and_jacobian(q)
+            jacs[row] = jac
+            u_rows[row] = self.kp[row] * wrap(r[row] - y) + self.kd[row] * (rd[row] - jac @ v)
+        u_fb = u_rows.copy()
+        u_err = np.where(error_rows > 0, u_rows, 0.0)
+        for row, jac in jacs.items():
+            u_fb[row] -= u_rows[row]
+            u_fb += jac * u_rows[row]
+            if error_rows[row] > 0:
+                u_err[row] -= u_rows[row]
+                u_err += jac * u_rows[row]
+        return u_fb, u_rows, u_err
 
     def references(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """References :math:`r, \\dot r`, each ``(n, nv)``, for desired trajectories ``(n, nv)``."""
@@ -54,15 +136,36 @@ class FeedbackLaw:
         return self.kp * (r - self.C @ q) + self.kd * (rd - self.C @ v)
 
     def quantity(self, q: np.ndarray) -> np.ndarray:
-        """Controlled quantities :math:`y = C q` in [rad] (rows of a trajectory also work)."""
-        return q @ self.C.T
+        """Controlled quantities in [rad]: :math:`y = C q`, and frame angles (rows of a
+        trajectory also work)."""
+        y = q @ self.C.T
+        for row, frame in self.frames.items():
+            if y.ndim == 1:
+                y[row] = frame.value(q)
+            else:
+                y[:, row] = [frame.value(qk) for qk in q]
+        return y
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """:math:`\\partial y/\\partial q`, ``(nv, nv)``."""
+        J = self.C.copy()
+        for row, frame in self.frames.items():
+            J[row] = frame.value_and_jacobian(q)[1]
+        return J
 
     def consistent_state(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Adjust the stabilized joints so that every target holds with zero velocity."""
+        """Adjust the stabilized joints so that every target holds with zero velocity
+        (a linear solve, or Newton's method when frame angles are stabilized)."""
         s = self.stabilizing
         q, v = q.copy(), v.copy()
-        if s.any():
-            Css, Cso = self.C[np.ix_(s, s)], self.C[np.ix_(s, ~s)]
-            q[s] = np.linalg.solve(Css, self.targets[s] - Cso @ q[~s])
-            v[s] = np.linalg.solve(Css, -Cso @ v[~s])
+        if not s.any():
+            return q, v
+        for _ in range(1 if self.linear else 50):
+            J = self.jacobian(q)
+            err = wrap(self.targets[s] - self.quantity(q)[s])
+            q[s] = q[s] + np.linalg.solve(J[np.ix_(s, s)], err)
+            if np.abs(err).max() < 1e-13:
+                break
+        J = self.jacobian(q)
+        v[s] = np.linalg.solve(J[np.ix_(s, s)], -J[np.ix_(s, ~s)] @ v[~s])
         return q, v

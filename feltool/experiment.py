@@ -16,11 +16,12 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from feltool.checkpoint import Checkpointer, Interrupted, stop_requested
 from feltool.config import ExperimentConfig, apply_overrides, parse_config, read_yaml
-from feltool.control import FeedbackLaw
+from feltool.control import FeedbackLaw, FrameAngle, wrap
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
-from feltool.events import check_events, plant_for_cycle
+from feltool.events import changed_model, check_events, plant_for_cycle
 from feltool.fel import FeedbackErrorLearner, feedforward
 from feltool.hybrid import Allocation, HybridLoop, Walker
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
@@ -171,6 +172,11 @@ def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
         if robot.model.joints[robot.joint_id(name)].nv != 1:
             problems.append((f"joints.{name}", "feltool roles need a one-degree-of-freedom joint"))
         target = jc.get("target") if isinstance(jc, dict) else None
+        frame = target.get("frame") if isinstance(target, dict) else None
+        if isinstance(frame, str) and not robot.model.existFrame(frame):
+            frames = ", ".join(f.name for f in robot.model.frames if f.name != "universe")
+            problems.append((f"joints.{name}.target.frame", f"robot '{robot.name}' has no "
+                                                            f"frame '{frame}' (its frames: {frames})"))
         links = target.get("link_angle") if isinstance(target, dict) else None
         if isinstance(links, list):
             for i, other in enumerate(links):
@@ -243,6 +249,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     C = np.zeros((nv, nv))
     kp, kd, targets = np.zeros(nv), np.zeros(nv), np.zeros(nv)
     tracking, stabilizing, actuated = (np.zeros(nv, bool) for _ in range(3))
+    frames: dict[int, FrameAngle] = {}
     for i, name in enumerate(joints):
         jc = cfg.joints[name]
         actuated[i] = jc.role != "passive"
@@ -256,13 +263,18 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                 C[i, joints.index(other)] += 1.0
         elif jc.role == "stabilize":
             stabilizing[i] = True
-            for other in jc.target.link_angle or [name]:
-                C[i, joints.index(other)] += 1.0
-            targets[i] = jc.target.value
+            t = jc.target
+            if t.frame is not None:
+                frames[i] = FrameAngle(robot.model, t.frame, t.vector, t.about, t.zero)
+            else:
+                for other in t.link_angle or [name]:
+                    C[i, joints.index(other)] += 1.0
+            targets[i] = t.value
         if jc.gains is not None and jc.role != "passive":
             kp[i], kd[i] = jc.gains.kp, jc.gains.kd
-    law = FeedbackLaw(C, kp, kd, tracking, stabilizing, targets)
-    if stabilizing.any() and abs(np.linalg.det(C[np.ix_(stabilizing, stabilizing)])) < 1e-12:
+    law = FeedbackLaw(C, kp, kd, tracking, stabilizing, targets, frames)
+    if stabilizing.any() and not frames and \
+            abs(np.linalg.det(C[np.ix_(stabilizing, stabilizing)])) < 1e-12:
         raise ConfigError([("joints", "the stabilized quantities do not determine the "
                                       "stabilizing joints (their link_angle rows are dependent)")],
                           str(source) if source else None)
@@ -304,7 +316,8 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                                    np.array(is_goal, dtype=bool), error_mask,
                                    np.array(rates), L.update, L.damping, L.sensitivity,
                                    L.fd_epsilon)
-    loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator)
+    loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator,
+                      error_mask)
     src = str(source) if source else None
     check_events(robot.model, cfg.events, src)
     hybrid = None
@@ -320,7 +333,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                                            "backend (the compiled cycle has no hybrid loop)")], src)
         hybrid = HybridLoop(dynamics, law, _allocation(cfg, robot, joints, src),
                             _walker(cfg, robot, joints, src), actuated, dt, cfg.sim.substeps,
-                            cfg.sim.integrator)
+                            cfg.sim.integrator, error_mask)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
                      init, source, hybrid)
     if L.sensitivity == "casadi" and learner.n_learned:
@@ -439,8 +452,14 @@ def reduce_robot(robot: Robot, locked: dict[str, float]) -> Robot:
     model = pin.buildReducedModel(robot.model, sorted(ids), q_ref)
     if model.nv == 0:
         raise ConfigError([("joints", "every joint is locked; nothing moves")])
-    return Robot(name=robot.name, model=model, source=robot.source, urdf_path=robot.urdf_path,
-                 package_dirs=robot.package_dirs)
+    reduced = Robot(name=robot.name, model=model, source=robot.source, urdf_path=robot.urdf_path,
+                    package_dirs=robot.package_dirs)
+    if robot._visual_model is not None:
+        # Visuals loaded with the robot (example-robot-data's, whose package:// meshes the URDF
+        # alone cannot resolve) are reduced with it, so viewers draw the reduced robot.
+        _, reduced._visual_model = pin.buildReducedModel(robot.model, robot._visual_model,
+                                                         sorted(ids), q_ref)
+    return reduced
 
 
 # -- running one seed ----------------------------------------------------------------------------
@@ -464,6 +483,8 @@ class CycleOutcome:
         theta_next: Parameters after the cycle's update.
         q_end, v_end: Robot state after the cycle.
         fb_abs_mean: Mean |u_fb| per joint over the cycle [N m].
+        fb_stabilized: Sum over stabilizing controllers of their mean |output| [N m].
+        fb_error: Sum over joints of the mean |error signal| [N m].
         track_err_rms: RMS of forward minus system angle per joint [rad].
         max_error: Largest |reference - controlled quantity| over the cycle [rad].
         max_speed: Largest |joint velocity| over the cycle [rad/s].
@@ -482,13 +503,28 @@ class CycleOutcome:
     max_speed: float
     finite: bool
     trace: Callable[[], tuple[CycleLog, np.ndarray]]
+    fb_stabilized: float = 0.0
+    fb_error: float = 0.0
     fall: str | None = None
     impacts: list = field(default_factory=list)
 
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
-             progress: Callable[[int, float], None] | None = None) -> SeedResult:
-    """Run one seed's learning and return its metrics (see the run directory's metrics.csv)."""
+             progress: Callable[[int, float], None] | None = None,
+             checkpoint: Checkpointer | None = None,
+             on_cycle: Callable[[int, CycleLog, np.ndarray, float], None] | None = None
+             ) -> SeedResult:
+    """Run one seed's learning and return its metrics (see the run directory's metrics.csv).
+
+    Args:
+        progress: Called after every cycle with (cycle, mean |error feedback| [N m]).
+        checkpoint: The seed continues from its last checkpoint (bit-identically), saves one
+            every ``checkpoint.every`` cycles, and on a stop request saves and raises
+            :class:`~feltool.checkpoint.Interrupted`.
+        on_cycle: Called after every cycle with (cycle, log, Qd, fb): the cycle's simulated
+            states ``log.q`` (n_steps x nv, [rad]), its forward (desired) trajectory ``Qd``
+            (n_steps x nv, [rad]) and fb as for ``progress`` (the live viewer streams these).
+    """
     cfg = exp.config
     cycles = cycles or cfg.sim.cycles
     theta = exp.initial_parameters(seed)
@@ -498,12 +534,22 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     if exp.hybrid is not None:
         q, v = exp.hybrid.initial_state(Qd, Vd)
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
-    reason = None
+    reason, start, wall_before = None, 1, 0.0
     run_cycle = _cycle_runner(exp, theta)
+    saved = checkpoint.load() if checkpoint is not None else None
+    if saved is not None:
+        start = saved["cycle"] + 1
+        theta, q, v = saved["theta"], saved["q"], saved["v"]
+        rows, wall_before = saved["rows"], saved["wall_s"]
+        history = list(saved["history"])
+        traces = {k[len("trace_"):]: v for k, v in saved.items() if k.startswith("trace_")}
+        if "rmp_x" in saved:
+            _restore_rmp_states(run_cycle, saved)
     t0 = time.perf_counter()
-    plant, impacts = exp.dynamics, {"guard": 0, "clock": 0}
-    for cycle in range(1, cycles + 1):
-        plant = _plant_for_cycle(exp, cycle) or plant
+    plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
+    for cycle in range(start, cycles + 1):
+        if cycle > start:
+            plant = _plant_for_cycle(exp, cycle) or plant
         out = run_cycle(theta, q, v, plant)
         for _, by_guard, _ in out.impacts:
             impacts["guard" if by_guard else "clock"] += 1
@@ -520,10 +566,19 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         q, v = out.q_end, out.v_end
         if progress is not None:
             progress(cycle, row["fb_abs_mean_error"])
-    wall = time.perf_counter() - t0
+        if on_cycle is not None:
+            on_cycle(cycle, *out.trace(), row["fb_abs_mean_error"])
+        if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
+            _save_checkpoint(checkpoint, cycle, theta, q, v, rows, history, traces,
+                             wall_before + time.perf_counter() - t0, run_cycle)
+            if stop_requested() and cycle < cycles:
+                raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
+    wall = wall_before + time.perf_counter() - t0
     if last is not None:
         traces.update(_trace("last", *last.trace()))
     steps = n * (len(rows) + (1 if reason else 0))
+    if checkpoint is not None:
+        checkpoint.clear()
     summary = _seed_summary(exp, seed, rows, reason, wall, steps)
     if exp.hybrid is not None and exp.hybrid.walker is not None:
         summary["guard_impacts"], summary["clock_impacts"] = impacts["guard"], impacts["clock"]
@@ -545,7 +600,10 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
 def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOutcome]:
     """The function ``(theta, q, v, plant) -> CycleOutcome`` that runs one cycle for this
     experiment's backend and update mode; ``plant`` is the simulated world (the known model, or
-    the one an event changed)."""
+    the one an event changed).
+
+    A per-step runner carries the RMP states from cycle to cycle in its ``rmp_states``.
+    """
     if exp.config.backend == "compiled":
         run = _compiled_runner(exp)
         return lambda theta, q, v, plant: run(theta, q, v)
@@ -559,13 +617,18 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOut
         if id(plant) not in loops:
             loops.clear()
             loops[id(plant)] = ClosedLoop(plant, exp.law, exp.loop.actuated, exp.loop.dt,
-                                          exp.loop.substeps, exp.loop.integrator)
+                                          exp.loop.substeps, exp.loop.integrator,
+                                          exp.loop.error_rows)
         return loops[id(plant)]
 
     if exp.config.learning.step == "per_step":
         states = _limit_cycle_states(exp, theta0)
-        return lambda theta, q, v, plant: _outcome(
-            exp, *_per_step_cycle(exp, theta, q, v, states, loop_for(plant)))
+
+        def per_step(theta, q, v, plant):
+            return _outcome(exp, *_per_step_cycle(exp, theta, q, v, states, loop_for(plant)))
+
+        per_step.rmp_states = states
+        return per_step
     return lambda theta, q, v, plant: _per_cycle(exp, theta, q, v, loop_for(plant))
 
 
@@ -573,6 +636,33 @@ def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
     """The simulated world from ``cycle`` on if an event starts then, else None."""
     backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
     return plant_for_cycle(exp.robot.model, exp.config.events, cycle, backend)
+
+
+def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
+    """The simulated world at cycle ``start`` (every event up to it applied; resumed runs)."""
+    events = [ev for ev in exp.config.events if ev.cycle <= start]
+    if not events:
+        return exp.dynamics
+    backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
+    return make_dynamics(changed_model(exp.robot.model, events), backend)
+
+
+def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history, traces,
+                     wall, run_cycle) -> None:
+    arrays = {"theta": theta, "q": q, "v": v, "history": np.array(history)}
+    arrays.update({f"trace_{k}": val for k, val in traces.items()})
+    states = getattr(run_cycle, "rmp_states", None)
+    if states is not None:
+        keys = sorted(states)
+        arrays["rmp_keys"] = np.array(keys)
+        arrays["rmp_x"] = np.array([states[k][0] for k in keys])
+        arrays["rmp_S"] = np.array([states[k][1] for k in keys])
+    checkpoint.save(cycle, arrays, {"rows": rows, "wall_s": wall})
+
+
+def _restore_rmp_states(run_cycle, saved: dict) -> None:
+    for key, x, S in zip(saved["rmp_keys"], saved["rmp_x"], saved["rmp_S"]):
+        run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
 
 
 def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop) -> CycleOutcome:
@@ -588,7 +678,7 @@ def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop) -> Cy
     theta_next = theta
     if exp.learner.n_learned and np.all(np.isfinite(log.v)):
         J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
-        theta_next = exp.learner.step(theta, J, log.u_fb)
+        theta_next = exp.learner.step(theta, J, log.u_err)
     return _outcome(exp, log, Qd, theta_next)
 
 
@@ -601,7 +691,7 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
     if log.fall is None and exp.learner.n_learned:
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
         J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs)
-        theta_next = exp.learner.step(theta, J, log.u_fb)
+        theta_next = exp.learner.step(theta, J, log.u_err)
     out = _outcome(exp, log, log.Qd, theta_next)
     out.fall, out.impacts = log.fall, list(log.impacts)
     return out
@@ -610,15 +700,17 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
 def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
     R, _ = exp.law.references(Qd, Qd)
     controlled = exp.law.tracking | exp.law.stabilizing
-    err = np.abs(R - exp.law.quantity(log.q))[:, controlled]
     with np.errstate(all="ignore"):
+        err = np.abs(wrap(R - exp.law.quantity(log.q)))[:, controlled]
         return CycleOutcome(
             theta_next, log.q_end, log.v_end, np.abs(log.u_fb).mean(axis=0),
             np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)),
             float(err.max()) if err.size else 0.0, float(np.abs(log.v).max()),
             bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
                  and np.all(np.isfinite(log.q_end))),
-            lambda: (log, Qd))
+            lambda: (log, Qd),
+            float(np.abs(log.u_rows[:, exp.law.stabilizing]).mean(axis=0).sum()),
+            float(np.abs(log.u_err).mean(axis=0).sum()))
 
 
 def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
@@ -634,10 +726,13 @@ def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
         def trace():
             out = compiled.full(theta, x0)
             X, U, Qd = out[7].T, out[8].T, out[9].T
-            return CycleLog(X[:, :nv], X[:, nv:], U, x_end[:nv], x_end[nv:]), Qd
+            return CycleLog(X[:, :nv], X[:, nv:], U, x_end[:nv], x_end[nv:], U,
+                            U * exp.learner.error_mask), Qd
 
         return CycleOutcome(theta_next, x_end[:nv], x_end[nv:], fb, rms, float(max_err[0]),
-                            float(max_speed[0]), finite, trace)
+                            float(max_speed[0]), finite, trace,
+                            float(fb[exp.law.stabilizing].sum()),
+                            float((fb * exp.learner.error_mask).sum()))
 
     return run
 
@@ -659,7 +754,7 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
     prims, n, nv = exp.primitives, exp.primitives.n_steps, exp.primitives.nv
     learner, law, dyn = exp.learner, exp.law, exp.dynamics
     theta = theta.copy()
-    Q, V, U, Qd, Vd = (np.empty((n, nv)) for _ in range(5))
+    Q, V, U, Urows, Uerr, Qd, Vd = (np.empty((n, nv)) for _ in range(7))
     for k in range(n):
         qd, vd, ad = np.empty(nv), np.empty(nv), np.empty(nv)
         Sq, Sv, Sa = {}, {}, {}
@@ -670,7 +765,7 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             Sq[i], Sv[i], Sa[i] = S[0], S[1], p.acceleration_sensitivity(S, k)
         Qd[k], Vd[k] = qd, vd
         R, Rd = law.references(qd[None], vd[None])
-        u_fb = law.feedback(q, v, R[0], Rd[0])
+        u_fb, u_rows, u_err = law.terms(q, v, R[0], Rd[0], exp.loop.error_rows)
         u_ff = dyn.inverse(qd, vd, ad)
         Dq, Dv, M = dyn.inverse_derivatives(qd, vd, ad)
         J = np.zeros((1, nv, learner.n_learned))
@@ -678,14 +773,14 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             sel = np.isin(rows, learner.learned)
             J[0][:, cols] = (np.outer(Dq[:, i], Sq[i][sel]) + np.outer(Dv[:, i], Sv[i][sel])
                              + np.outer(M[:, i], Sa[i][sel]))
-        Q[k], V[k], U[k] = q, v, u_fb
+        Q[k], V[k], U[k], Urows[k], Uerr[k] = q, v, u_fb, u_rows, u_err
         q, v = loop.advance(q, v, loop.actuated * (u_ff + u_fb))
         for i, p in prims.primitives.items():
             x, S = states[i]
             th = theta[prims.slices[i]]
             states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
-        theta = learner.step(theta, J, u_fb[None])
-    return CycleLog(Q, V, U, q, v), Qd, theta
+        theta = learner.step(theta, J, u_err[None])
+    return CycleLog(Q, V, U, q, v, Urows, Uerr), Qd, theta
 
 
 def _divergence(exp: Experiment, out: CycleOutcome) -> str | None:
@@ -709,9 +804,9 @@ def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
     row: dict[str, float] = {"seed": seed, "cycle": cycle}
     for i, name in enumerate(exp.joints):
         row[f"fb_abs_mean_{name}"] = float(fb[i])
-    row["fb_abs_mean_stabilized"] = float(fb[exp.law.stabilizing].sum())
+    row["fb_abs_mean_stabilized"] = out.fb_stabilized
     row["fb_abs_mean_total"] = float(fb.sum())
-    row["fb_abs_mean_error"] = float((fb * exp.learner.error_mask).sum())
+    row["fb_abs_mean_error"] = out.fb_error
     for i, name in enumerate(exp.joints):
         row[f"track_err_rms_{name}"] = float(rms[i])
     row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
@@ -751,7 +846,7 @@ def stabilization_errors(exp: Experiment, traces: dict[str, np.ndarray]) -> dict
             continue
         for kind in ("system", "forward"):
             y = exp.law.quantity(traces[f"last_q_{kind}"])[:, i]
-            out[f"{name}_{kind}"] = float(np.abs(y - exp.law.targets[i]).max())
+            out[f"{name}_{kind}"] = float(np.abs(wrap(y - exp.law.targets[i])).max())
     return out
 
 

@@ -119,22 +119,26 @@ class FeedbackErrorLearner:
         return J
 
     def error(self, U_fb: np.ndarray) -> np.ndarray:
-        """Error signal :math:`e_k` for feedback samples ``(n, nv)``."""
+        """Error signal :math:`e_k` of joint-local feedback samples ``(n, nv)``: the feedback
+        of the error joints (frame-angle controllers give theirs as ``CycleLog.u_err``)."""
         return U_fb * self.error_mask
 
-    def gradient(self, J: np.ndarray, U_fb: np.ndarray) -> np.ndarray:
-        """:math:`\\sum_k J_k^\\top e_k` over the learned parameters."""
-        return np.einsum("kr,krp->p", self.error(U_fb), J)
+    def gradient(self, J: np.ndarray, E: np.ndarray) -> np.ndarray:
+        """:math:`\\sum_k J_k^\\top e_k` over the learned parameters, for error torques
+        ``E`` ``(n, nv)``."""
+        return np.einsum("kr,krp->p", E, J)
 
-    def step(self, theta: np.ndarray, J: np.ndarray, U_fb: np.ndarray) -> np.ndarray:
-        """Parameters after one update from a cycle's (or a step's) Jacobian and feedback."""
+    def step(self, theta: np.ndarray, J: np.ndarray, E: np.ndarray) -> np.ndarray:
+        """Parameters after one update from a cycle's (or a step's) Jacobian and error torques
+        :math:`e_k` ``(n, nv)``."""
         if self.n_learned == 0:
             return theta.copy()
         hess = None
         if self.update == "gauss_newton":
-            JE = J * self.error_mask[None, :, None]
+            rows = np.any(E != 0, axis=0) | (self.error_mask > 0)
+            JE = J * rows[None, :, None]
             hess = np.einsum("krp,krs->ps", JE, J)
-        return self.apply(theta, self.gradient(J, U_fb), hess)
+        return self.apply(theta, self.gradient(J, E), hess)
 
     def apply(self, theta: np.ndarray, grad: np.ndarray, hess: np.ndarray | None) -> np.ndarray:
         """The update from :math:`g = \\sum_k J_k^\\top e_k` and (for gauss_newton)

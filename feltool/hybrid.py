@@ -166,6 +166,8 @@ class HybridLog:
 
     Attributes:
         q, v, u_fb: system positions [rad], velocities [rad/s], feedback [N m], ``(n, nv)``.
+        u_rows, u_err: each controller's own output and the learning signal (the error
+            controllers' joint torques), ``(n, nv)``, as in :class:`feltool.simulate.CycleLog`.
         q_end, v_end: state after the last step (stance label 0 again after a full cycle).
         Qd, Vd, Ad: desired trajectory in joint coordinates, ``(n, nv)``.
         stance: stance label per step ``(n,)``.
@@ -184,6 +186,8 @@ class HybridLog:
     stance: np.ndarray
     impacts: list = field(default_factory=list)
     fall: str | None = None
+    u_rows: np.ndarray | None = None
+    u_err: np.ndarray | None = None
 
 
 class HybridLoop:
@@ -195,14 +199,16 @@ class HybridLoop:
         allocation: Motor allocation, or None for "every non-passive joint is a motor".
         walker: Hybrid walking, or None for a continuous robot.
         actuated: ``(nv,)`` selection used when ``allocation`` is None.
-        dt, substeps, integrator: as :class:`feltool.simulate.ClosedLoop`.
+        dt, substeps, integrator, error_rows: as :class:`feltool.simulate.ClosedLoop`.
     """
 
     def __init__(self, known: Dynamics, law: FeedbackLaw, allocation: Allocation | None,
                  walker: Walker | None, actuated: np.ndarray, dt: float, substeps: int = 1,
-                 integrator: str = "semi_implicit_euler"):
+                 integrator: str = "semi_implicit_euler", error_rows: np.ndarray | None = None):
         self.known, self.law, self.allocation, self.walker = known, law, allocation, walker
         self.actuated = np.asarray(actuated, dtype=float)
+        self.error_rows = (np.zeros(len(self.actuated)) if error_rows is None
+                           else np.asarray(error_rows, dtype=float))
         self.dt, self.substeps, self.integrator = dt, substeps, integrator
 
     def initial_state(self, P: np.ndarray, Pv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -216,7 +222,7 @@ class HybridLoop:
         ``(n, nv)``; ``plant`` is the simulated world (the known model, or a changed one)."""
         n, nv = P.shape
         W, law, alloc = self.walker, self.law, self.allocation
-        Q, V, U, Qd, Vd, Ad = (np.zeros((n, nv)) for _ in range(6))
+        Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n, nv)) for _ in range(8))
         labels = np.zeros(n, dtype=int)
         impacts, stance, fall = [], 0, None
         h = self.dt / self.substeps
@@ -230,7 +236,7 @@ class HybridLoop:
                 qd, vd, ad = P[k], Pv[k], Pa[k]
             Q[k], V[k], Qd[k], Vd[k], Ad[k], labels[k] = q, v, qd, vd, ad, stance
             r, rd = law.references(qd[None], vd[None])
-            U[k] = law.feedback(q, v, r[0], rd[0])
+            U[k], Urows[k], Uerr[k] = law.terms(q, v, r[0], rd[0], self.error_rows)
             tau = self.known.inverse(qd, vd, ad) + U[k]
             tau = alloc.joint_torque(q, tau) if alloc else self.actuated * tau
             for _ in range(self.substeps):
@@ -246,7 +252,8 @@ class HybridLoop:
             if fall:
                 k_end = k + 1
                 return HybridLog(Q[:k_end], V[:k_end], U[:k_end], q, v, Qd[:k_end], Vd[:k_end],
-                                 Ad[:k_end], labels[:k_end], impacts, fall)
+                                 Ad[:k_end], labels[:k_end], impacts, fall, Urows[:k_end],
+                                 Uerr[:k_end])
             if W and len(impacts) < W.steps_per_cycle:
                 t = (k + 1) * self.dt
                 j = len(impacts)
@@ -256,7 +263,7 @@ class HybridLoop:
                     impacts.append((k + 1, bool(by_guard), W.foot_x(q)))
                     q, v = W.apply_impact(q, v)
                     stance = 1 - stance
-        return HybridLog(Q, V, U, q, v, Qd, Vd, Ad, labels, impacts, None)
+        return HybridLog(Q, V, U, q, v, Qd, Vd, Ad, labels, impacts, None, Urows, Uerr)
 
     def jacobian_derivatives(self, log: HybridLog) -> tuple:
         """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with

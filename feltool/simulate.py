@@ -29,8 +29,10 @@ class CycleLog:
     Attributes:
         q: System joint positions at each step's start, ``(n, nq)`` in [rad].
         v: System joint velocities, ``(n, nv)`` in [rad/s].
-        u_fb: Feedback torques, ``(n, nv)`` in [N m].
+        u_fb: Feedback torques on the joints, ``(n, nv)`` in [N m].
         q_end, v_end: State after the last step.
+        u_rows: Each controller's own output, ``(n, nv)`` (equals ``u_fb`` for linear laws).
+        u_err: The learning signal: joint torques of the error controllers, ``(n, nv)``.
     """
 
     q: np.ndarray
@@ -38,6 +40,8 @@ class CycleLog:
     u_fb: np.ndarray
     q_end: np.ndarray
     v_end: np.ndarray
+    u_rows: np.ndarray | None = None
+    u_err: np.ndarray | None = None
 
 
 class ClosedLoop:
@@ -53,8 +57,11 @@ class ClosedLoop:
     """
 
     def __init__(self, dynamics: Dynamics, law: FeedbackLaw, actuated: np.ndarray, dt: float,
-                 substeps: int = 1, integrator: str = "semi_implicit_euler"):
+                 substeps: int = 1, integrator: str = "semi_implicit_euler",
+                 error_rows: np.ndarray | None = None):
         self.dynamics = dynamics
+        self.error_rows = (np.zeros(len(actuated)) if error_rows is None
+                           else np.asarray(error_rows, dtype=float))
         self.law = law
         self.actuated = np.asarray(actuated, dtype=float)
         self.dt = dt
@@ -84,8 +91,8 @@ class ClosedLoop:
         :math:`K = [K_P C,\\ K_D C]`, so the loop computes only :math:`u^k = S(u_{ff}^k + b^k) - S K x`
         and the logged feedback is recovered afterwards from the logged states.
         """
-        if not getattr(self.dynamics, "euclidean", False):
-            return self._run_cycle_manifold(q, v, R, Rd, u_ff)
+        if not (getattr(self.dynamics, "euclidean", False) and self.law.linear):
+            return self._run_cycle_general(q, v, R, Rd, u_ff)
         n, nv = len(R), v.shape[0]
         law, S = self.law, self.actuated
         K = np.hstack([law.kp[:, None] * law.C, law.kd[:, None] * law.C])
@@ -109,14 +116,17 @@ class ClosedLoop:
                     qx += h * vx
                     vx += h * a
         U = B - X @ K.T
-        return CycleLog(X[:, :nv], X[:, nv:], U, x[:nv].copy(), x[nv:].copy())
+        return CycleLog(X[:, :nv], X[:, nv:], U, x[:nv].copy(), x[nv:].copy(), U,
+                        U * self.error_rows)
 
-    def _run_cycle_manifold(self, q, v, R, Rd, u_ff) -> CycleLog:
-        """The same loop for models whose configuration is not a plain vector (pin.integrate)."""
-        n = len(R)
-        Q, V, U = np.empty((n, q.shape[0])), np.empty((n, v.shape[0])), np.empty((n, v.shape[0]))
+    def _run_cycle_general(self, q, v, R, Rd, u_ff) -> CycleLog:
+        """The same loop for nonlinear feedback laws (frame angles) and for models whose
+        configuration is not a plain vector (``pin.integrate``)."""
+        n, nv = len(R), v.shape[0]
+        Q, V = np.empty((n, q.shape[0])), np.empty((n, nv))
+        U, Urows, Uerr = np.empty((n, nv)), np.empty((n, nv)), np.empty((n, nv))
         for k in range(n):
             Q[k], V[k] = q, v
-            U[k] = self.law.feedback(q, v, R[k], Rd[k])
+            U[k], Urows[k], Uerr[k] = self.law.terms(q, v, R[k], Rd[k], self.error_rows)
             q, v = self.advance(q, v, self.actuated * (u_ff[k] + U[k]))
-        return CycleLog(Q, V, U, q, v)
+        return CycleLog(Q, V, U, q, v, Urows, Uerr)

@@ -96,6 +96,7 @@ def _meshcat():
 
 def _viewer_js() -> str:
     """The meshcat viewer bundle that ships inside the meshcat Python package."""
+    _meshcat()  # imports meshcat without its pyzmq deprecation warning
     import meshcat
 
     path = Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js"
@@ -659,6 +660,10 @@ _PAGE = """<!DOCTYPE html>
 # the parent process is gone, however it went.
 _SERVER_CODE = r"""
 import os, sys
+try:
+    os.nice(10)  # the viewer yields the CPU to learning
+except OSError:
+    pass
 parent = int(sys.argv[1])
 zmq_url = sys.argv[2] or None
 import tornado.ioloop

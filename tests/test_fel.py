@@ -42,7 +42,7 @@ def test_update_follows_eq_3_6():
     rng = np.random.default_rng(0)
     J = rng.normal(size=(n, 2, exp.learner.n_learned))
     U = rng.normal(size=(n, 2))
-    new = exp.learner.step(theta, J, U)
+    new = exp.learner.step(theta, J, exp.learner.error(U))
     expected = theta.copy()
     expected[exp.learner.learned] += exp.learner.rates * np.einsum("k,kp->p", U[:, 1], J[:, 1])
     np.testing.assert_allclose(new, expected)
