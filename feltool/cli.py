@@ -204,21 +204,27 @@ def cmd_robots(args: argparse.Namespace) -> int:
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
-    from feltool.robot import describe, load_robot
+    from feltool.robot import config_skeleton, describe, load_robot
 
-    info = describe(load_robot(args.robot, base_dir=Path.cwd()))
+    robot = load_robot(args.robot, base_dir=Path.cwd())
+    info = describe(robot)
     if args.json:
-        print(json.dumps(info, indent=2))
+        print(json.dumps({**info, "config_skeleton": config_skeleton(robot)}, indent=2))
         return 0
     print(f"robot {info['name']}  ({info['source']})")
-    print(f"  {'joint':<22} {'type':<18} {'axis':<18} {'limits':<20} {'parent':<16}")
+    print(f"  {'joint':<22} {'type':<18} {'axis':<18} {'limits [rad|m]':<20} {'effort':>8} "
+          f"{'actuated':>8}  {'parent':<16}")
     for j in info["joints"]:
         lim = f"[{j['lower']:.4g}, {j['upper']:.4g}]"
-        print(f"  {j['name']:<22} {j['type']:<18} {str(j['axis']):<18} {lim:<20} {j['parent']:<16}")
+        axis = "-" if j["axis"] is None else str([round(a, 3) for a in j["axis"]])
+        print(f"  {j['name']:<22} {j['type']:<18} {axis:<18} {lim:<20} {j['effort']:>8.4g} "
+              f"{'yes' if j['actuated'] else 'no':>8}  {j['parent']:<16}")
     print(f"  {'body (moved by joint)':<22} {'mass [kg]':>10}")
     for b in info["bodies"]:
         print(f"  {b['name']:<22} {b['mass']:>10.4g}")
     print(f"  total mass: {info['total_mass']:.4g} kg")
+    print("\nsuggested config (every joint locked; give some a role):\n")
+    print(config_skeleton(robot))
     return 0
 
 

@@ -314,9 +314,38 @@ def describe(robot: Robot) -> dict:
             "lower": float(model.lowerPositionLimit[lo:hi].min()) if joint.nq else 0.0,
             "upper": float(model.upperPositionLimit[lo:hi].max()) if joint.nq else 0.0,
             "effort": float(model.effortLimit[joint.idx_v]) if joint.nv else 0.0,
+            "actuated": bool(joint.nv and model.effortLimit[joint.idx_v] > 0),
             "parent": model.names[model.parents[jid]],
         })
     bodies = [{"name": model.names[jid], "mass": float(model.inertias[jid].mass)}
               for jid in range(1, model.njoints)]
     return {"name": robot.name, "source": robot.source, "joints": joints, "bodies": bodies,
             "total_mass": robot.total_mass}
+
+
+def config_skeleton(robot: Robot) -> str:
+    """A YAML experiment skeleton listing every joint of ``robot`` (all locked, with the roles
+    to choose from), ready to edit."""
+    info = describe(robot)
+    lines = [f"name: {robot.name}_experiment", f"robot: {robot.source}", "gravity: 9.81",
+             "period_s: 1.0", "sim: {rate_hz: 100, cycles: 100}", "primitives: {basis: 10}",
+             "joints:   # role: track | stabilize | passive | locked (joints not listed are locked at 0)"]
+    for j in info["joints"]:
+        if j["nv"] != 1:
+            lines.append(f"  # {j['name']}: {j['type']} joint ({j['nv']} DoF) - can only be locked")
+            continue
+        mid = 0.5 * (max(j["lower"], -3.14) + min(j["upper"], 3.14))
+        lines.append(f"  {j['name']}: {{role: locked, posture: {mid:.3g}}}"
+                     f"   # {j['type']}, limits [{j['lower']:.3g}, {j['upper']:.3g}]")
+    lines += ["  # e.g. a tracked joint:",
+              "  #   role: track",
+              "  #   demo: {kind: sine, mean: 0.0, amplitude: 0.3}",
+              "  #   gains: {kp: 100.0, kd: 10.0}",
+              "  # e.g. a stabilizing joint whose RMP is learned:",
+              "  #   role: stabilize",
+              "  #   target: {frame: LINK, vector: [0, 0, 1], about: [0, 1, 0], value: 0.0}",
+              "  #   gains: {kp: 50.0, kd: 5.0}",
+              "  #   learn: {init: random}",
+              "learning: {error: stabilizing, rates: {weights: 0.2, goal: 2.0e-5}}",
+              "seeds: 5"]
+    return "\n".join(lines) + "\n"
