@@ -66,12 +66,18 @@ class PrimitiveOverride(Strict):
 
 
 class SineDemo(Strict):
-    """A demonstrated sine, fitted into the joint's RMP by least squares (eq. 2.4)."""
+    """A demonstrated sine (optionally with higher harmonics), fitted into the joint's RMP by
+    least squares (eq. 2.4): q(t) = mean + amplitude sin(w s + phase) + sum_k A_k sin(k w s + phi_k)
+    with w = 2 pi / T, s = t - delay T and k = 2, 3, ... for the entries of ``harmonics``."""
 
     kind: Literal["sine"] = Field(description="Demonstration kind.")
     mean: FiniteFloat = Field(0.0, description="Mean (the RMP goal) in [rad].")
     amplitude: FiniteFloat = Field(description="Amplitude in [rad].")
     phase: FiniteFloat = Field(0.0, description="Phase offset in [rad] at the start of a cycle.")
+    harmonics: list[tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=list, description=
+        "Higher harmonics k = 2, 3, ...: [amplitude in [rad], phase in [rad]] each.")
+    delay: FiniteFloat = Field(0.0, description="Delay of the whole demonstration, as a "
+                               "fraction of the period (e.g. 0.5 for a walker's other leg) [-].")
 
 
 class Gains(Strict):
@@ -133,6 +139,9 @@ class JointConfig(Strict):
     role: Literal["track", "stabilize", "passive", "locked"] = Field(description="track: PD on "
         "the joint's RMP (eq. 2.7); stabilize: PD holding a target (§3.1); passive: unactuated; "
         "locked: removed from the model at `posture`.")
+    link_angle: list[str] | None = Field(None, min_length=1, description="track only: the "
+        "tracked quantity is this link's absolute angle, the sum of these joints' angles "
+        "(reference: the same sum of the desired joint angles); default the joint's own angle.")
     demo: SineDemo | None = Field(None, description="Demonstration fitted into the RMP (eq. 2.4).")
     gains: Gains | None = Field(None, description="Feedback gains (track and stabilize).")
     target: Target | None = Field(None, description="Stabilized quantity (stabilize only).")
@@ -147,6 +156,8 @@ class JointConfig(Strict):
             problems.append(f"a '{self.role}' joint needs 'gains'")
         if self.role == "stabilize" and self.target is None:
             problems.append("a 'stabilize' joint needs 'target'")
+        if self.role != "track" and self.link_angle is not None:
+            problems.append(f"'link_angle' is only for 'track' joints, not '{self.role}'")
         if self.role != "stabilize" and self.target is not None:
             problems.append(f"'target' is only for 'stabilize' joints, not '{self.role}'")
         if self.role in ("track", "stabilize", "passive") and self.demo is None and (
@@ -190,6 +201,94 @@ class LearningConfig(Strict):
                                       "to max(1, |theta_i|) [-].")
 
 
+class Guard(Strict):
+    """The event that ends a step: a link's absolute angle crossing a value (eq. of the guard
+    surface :math:`a^\\top q = \\text{value}`), armed over a window of the nominal step."""
+
+    link_angle: list[str] = Field(min_length=1, description="Joints whose angles add up to the "
+                                  "guarded link's absolute angle, e.g. [stance_ankle, swing_hip] "
+                                  "for the swing leg's angle from the vertical.")
+    value: FiniteFloat = Field(description="The step ends when the angle crosses this, in [rad].")
+    direction: Literal["rising", "falling"] = Field("rising", description="Crossing direction.")
+    window: tuple[Annotated[float, Field(ge=0, le=1)], Annotated[float, Field(gt=0, le=1)]] = \
+        Field((0.75, 1.0), description="Fractions of the nominal step (period / steps_per_cycle) "
+              "between which the guard is armed; at the window's end the step ends by the clock "
+              "(counted as clock_impacts in summary.json) [-].")
+
+
+class FallCheck(Strict):
+    """When a walker has fallen: a link's absolute angle beyond a limit."""
+
+    link_angle: list[str] = Field(min_length=1, description="Joints whose angles add up to the "
+                                  "checked link's absolute angle (e.g. [stance_ankle]).")
+    max_abs: PositiveFloat = Field(description="The seed stops as diverged ('the robot fell') "
+                                   "when |angle| exceeds this, in [rad].")
+
+
+class WalkingConfig(Strict):
+    """Hybrid walking: a pinned stance foot, steps ending on a guard, stance/swing relabelling.
+
+    Coordinates: ``absolute`` gives each joint's link angle from the vertical in stance-relative
+    labels (theta = A q). Each joint's RMP describes, in these absolute angles, the link that the
+    joint moves in the cycle's first step; after every impact the ``swap`` pair is exchanged
+    (X+ = [q2, q1, q3, ...] in the thesis's absolute angles)."""
+
+    absolute: dict[str, list[str]] = Field(min_length=1, description="For every joint: the joints "
+        "whose angles add up to its link's absolute angle (stance-relative labels).")
+    swap: tuple[str, str] = Field(description="The two joints whose absolute angles (and "
+                                  "velocities) are exchanged at an impact: stance and swing leg.")
+    impact: Literal["relabel", "rigid"] = Field("relabel", description="relabel: the thesis's "
+        "switch of labels, velocities kept; rigid: a perfectly inelastic foot impact (planar "
+        "impact map solved in the model with a free base), then relabelling.")
+    contact_frame: str | None = Field(None, description="Frame of the swing foot (URDF link), "
+                                      "needed by impact: rigid.")
+    steps_per_cycle: int = Field(2, ge=1, le=100, description="Steps (impacts) per cycle.")
+    guard: Guard = Field(description="When a step ends.")
+    fall: FallCheck | None = Field(None, description="When the walker has fallen.")
+    poincare: bool = Field(True, description="After learning, find the step-to-step map's fixed "
+                           "point and its eigenvalues (summary.json: poincare).")
+
+
+class ActuationConfig(Strict):
+    """Motors and how the joint torques are allocated to them (underactuated robots).
+
+    Each motor acts on an angle that is a linear combination of joint angles, y_m = b_m^T q, so it
+    applies the generalized force b_m u_m; B = [b_1 ... b_k]. The joint-space torque
+    tau = u_ff + u_fb is mapped onto the motors by ``inertia_weighted``:
+    u = (B^T M^-1 B)^-1 B^T M^-1 tau (the accelerations closest to those tau would produce), or
+    ``pseudo_inverse``: u = B^+ tau. The robot receives B u."""
+
+    motors: dict[str, dict[str, FiniteFloat]] = Field(min_length=1, description="Per motor: "
+        "{joint: coefficient} of the angle it drives, e.g. {torso_hip: 1, swing_hip: -1} for a "
+        "motor between the torso and the swing leg.")
+    allocation: Literal["inertia_weighted", "pseudo_inverse"] = Field(
+        "inertia_weighted", description="Allocation of joint torques onto the motors.")
+
+
+class EventConfig(Strict):
+    """A change of the world at the start of a learning cycle; the known model stays as it was,
+    only the simulated plant changes, so FEL has to adapt."""
+
+    cycle: int = Field(ge=1, description="Learning cycle at whose start the change happens.")
+    kind: Literal["slope", "payload", "mass"] = Field(description="slope: tilt gravity (the "
+        "ground) by `angle` about the world's y axis; payload: add a point mass `mass` at "
+        "`frame`; mass: set the mass of the body moved by the joint of `link` to `mass` "
+        "(its inertia scaled alike).")
+    angle: FiniteFloat | None = Field(None, description="Slope angle in [rad] (kind slope); "
+                                      "positive tilts gravity towards +x (downhill ahead).")
+    mass: NonNegFloat | None = Field(None, description="Mass in [kg] (payload, mass).")
+    frame: str | None = Field(None, description="URDF link/frame carrying the payload.")
+    link: str | None = Field(None, description="URDF link whose mass is set (kind mass).")
+
+    @model_validator(mode="after")
+    def _fields(self) -> EventConfig:
+        need = {"slope": ["angle"], "payload": ["mass", "frame"], "mass": ["mass", "link"]}
+        missing = [f for f in need[self.kind] if getattr(self, f) is None]
+        if missing:
+            raise ValueError(f"a '{self.kind}' event needs " + ", ".join(missing))
+        return self
+
+
 class SweepConfig(Strict):
     """A grid for ``feltool sweep`` (ignored by ``feltool run``)."""
 
@@ -219,6 +318,11 @@ class ExperimentConfig(Strict):
                                            "URDF joint name; joints not listed are locked at 0.")
     learning: LearningConfig = Field(default_factory=LearningConfig,
                                      description="Feedback error learning.")
+    walking: WalkingConfig | None = Field(None, description="Hybrid walking (walkers only).")
+    actuation: ActuationConfig | None = Field(None, description="Motors and torque allocation "
+        "(underactuated robots); default every non-passive joint is its own motor.")
+    events: list[EventConfig] = Field(default_factory=list, description="Changes of the world "
+                                      "at given cycles (adaptation experiments).")
     seeds: int | list[Annotated[int, Field(ge=0)]] = Field(20, description="Number of seeds "
                                                           "(0..n-1) or an explicit list.")
     sweep: SweepConfig | None = Field(None, description="Grid for feltool sweep.")

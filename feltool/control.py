@@ -2,15 +2,15 @@ r"""Feedback laws: tracking PD (eq. 2.7) and stabilizing PD (§3.1), in one matr
 
 Each actuated joint :math:`j` owns one controlled quantity :math:`y_j = c_j^\top q`: the joint
 itself when it tracks its RMP, or a link's absolute angle (a sum of joint angles, e.g.
-:math:`q_1 + q_2` for the arm's upper link) when it stabilizes. Its feedback torque acts on joint
-:math:`j`:
+:math:`q_1 + q_2` for the arm's upper link) when it stabilizes or tracks with ``link_angle``.
+Its feedback torque acts on joint :math:`j`:
 
 .. math::
 
     u_{\mathrm{fb},j} = K_{P,j}\,(r_j - c_j^\top q) + K_{D,j}\,(\dot r_j - c_j^\top \dot q),
 
-with :math:`r_j = q_{d,j}` for tracking (eq. 2.7) and :math:`r_j` = the target,
-:math:`\dot r_j = 0` for stabilizing (§3.1:
+with :math:`r_j = c_j^\top q_d` for tracking (eq. 2.7; :math:`q_{d,j}` unless ``link_angle``)
+and :math:`r_j` = the target, :math:`\dot r_j = 0` for stabilizing (§3.1:
 :math:`u = K_{P2}(\pi/2 - (q_1 + q_2)) + K_{D2}(0 - (\dot q_1 + \dot q_2))`).
 Passive joints have zero rows.
 """
@@ -126,8 +126,8 @@ class FeedbackLaw:
 
     def references(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """References :math:`r, \\dot r`, each ``(n, nv)``, for desired trajectories ``(n, nv)``."""
-        R = np.where(self.tracking, q_d, 0.0)
-        Rd = np.where(self.tracking, v_d, 0.0)
+        R = np.where(self.tracking, q_d @ self.C.T, 0.0)
+        Rd = np.where(self.tracking, v_d @ self.C.T, 0.0)
         R[:, self.stabilizing] = self.targets[self.stabilizing]
         return R, Rd
 

@@ -21,7 +21,9 @@ from feltool.config import ExperimentConfig, apply_overrides, parse_config, read
 from feltool.control import FeedbackLaw, FrameAngle, wrap
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
+from feltool.events import changed_model, check_events, plant_for_cycle
 from feltool.fel import FeedbackErrorLearner, feedforward
+from feltool.hybrid import Allocation, HybridLoop, Walker
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
 from feltool.simulate import ClosedLoop, CycleLog
@@ -42,6 +44,7 @@ class Experiment:
         loop: Closed-loop simulator.
         learner: The FEL learner.
         init: Per learned joint: ``(slice, weight std, goal centre, goal spread, kind)``.
+        hybrid: The step-by-step loop for walkers and allocated motors (else None).
     """
 
     config: ExperimentConfig
@@ -55,6 +58,7 @@ class Experiment:
     learner: FeedbackErrorLearner
     init: list[tuple[slice, float, float, float, str]] = field(default_factory=list)
     source: Path | None = None
+    hybrid: HybridLoop | None = None
 
     @property
     def learned_joints(self) -> list[str]:
@@ -234,7 +238,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         prims[i] = prim
         if jc.demo is not None:
             d = jc.demo
-            q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t)
+            q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t, d.harmonics, d.delay)
             thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=d.mean)
         else:
             thetas[i] = np.zeros(prim.n_params)
@@ -250,7 +254,13 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         jc = cfg.joints[name]
         actuated[i] = jc.role != "passive"
         if jc.role == "track":
-            tracking[i], C[i, i] = True, 1.0
+            tracking[i] = True
+            for other in jc.link_angle or [name]:
+                if other not in joints:
+                    raise ConfigError([(f"joints.{name}.link_angle", f"'{other}' is not a "
+                                        "configured (unlocked) joint")],
+                                      str(source) if source else None)
+                C[i, joints.index(other)] += 1.0
         elif jc.role == "stabilize":
             stabilizing[i] = True
             t = jc.target
@@ -308,8 +318,24 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                                    L.fd_epsilon)
     loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator,
                       error_mask)
+    src = str(source) if source else None
+    check_events(robot.model, cfg.events, src)
+    hybrid = None
+    if cfg.walking is not None or cfg.actuation is not None:
+        if L.step == "per_step":
+            raise ConfigError([("learning.step", "walking/actuation support only per_cycle "
+                                                 "learning")], src)
+        if L.sensitivity != "exact":
+            raise ConfigError([("learning.sensitivity", "walking/actuation support only "
+                                                        "'exact'")], src)
+        if cfg.backend == "compiled":
+            raise ConfigError([("backend", "walking/actuation need the pinocchio or casadi "
+                                           "backend (the compiled cycle has no hybrid loop)")], src)
+        hybrid = HybridLoop(dynamics, law, _allocation(cfg, robot, joints, src),
+                            _walker(cfg, robot, joints, src), actuated, dt, cfg.sim.substeps,
+                            cfg.sim.integrator, error_mask)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
-                     init, source)
+                     init, source, hybrid)
     if L.sensitivity == "casadi" and learner.n_learned:
         from feltool.compiled import feedforward_jacobian
 
@@ -317,6 +343,9 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     if cfg.backend == "compiled":
         from feltool.compiled import check_supported
 
+        if cfg.events:
+            raise ConfigError([("events", "backend 'compiled' simulates the known model only; "
+                                          "use pinocchio or casadi for events")], src)
         check_supported(exp)
     return exp
 
@@ -331,6 +360,75 @@ class _BufferedFn:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         return self._call(x)[0]
+
+
+def _joint_row(names: dict[str, float] | list[str], joints: list[str], where: str,
+               src: str | None) -> np.ndarray:
+    """Row ``a`` with ``a @ q`` = the weighted sum of the named joints' angles."""
+    items = names.items() if isinstance(names, dict) else [(n, 1.0) for n in names]
+    row = np.zeros(len(joints))
+    for name, coef in items:
+        if name not in joints:
+            raise ConfigError([(where, f"'{name}' is not a configured (unlocked) joint; "
+                                       f"joints: {', '.join(joints)}")], src)
+        row[joints.index(name)] += coef
+    return row
+
+
+def _allocation(cfg: ExperimentConfig, robot: Robot, joints: list[str],
+                src: str | None) -> Allocation | None:
+    if cfg.actuation is None:
+        return None
+    B = np.stack([_joint_row(m, joints, f"actuation.motors.{name}", src)
+                  for name, m in cfg.actuation.motors.items()], axis=1)
+    if np.linalg.matrix_rank(B) < B.shape[1]:
+        raise ConfigError([("actuation.motors", "the motors' rows are linearly dependent")], src)
+    return Allocation(B, cfg.actuation.allocation, robot.model)
+
+
+def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
+            src: str | None) -> Walker | None:
+    w = cfg.walking
+    if w is None:
+        return None
+    missing = [n for n in joints if n not in w.absolute]
+    if missing:
+        raise ConfigError([("walking.absolute", "needs every configured joint; missing: "
+                                                + ", ".join(missing))], src)
+    A = np.stack([_joint_row(w.absolute[n], joints, f"walking.absolute.{n}", src)
+                  for n in joints])
+    if abs(np.linalg.det(A)) < 1e-12:
+        raise ConfigError([("walking.absolute", "the absolute angles do not determine the "
+                                                "joint angles (singular map)")], src)
+    Pi = np.eye(len(joints))
+    for i, name in enumerate(w.swap):
+        if name not in joints:
+            raise ConfigError([(f"walking.swap.{i}", f"'{name}' is not a configured joint")], src)
+    a, b = joints.index(w.swap[0]), joints.index(w.swap[1])
+    Pi[[a, b]] = Pi[[b, a]]
+    free, foot = None, None
+    if w.impact == "rigid" and w.contact_frame is None:
+        raise ConfigError([("walking.contact_frame", "impact: rigid needs the swing foot's "
+                                                     "frame")], src)
+    if w.contact_frame is not None:
+        # The same robot with its base freed in the sagittal plane (x, z): q_e = (x, z, q).
+        root = pin.JointModelComposite(pin.JointModelPX())
+        root.addJoint(pin.JointModelPZ())
+        free = None if robot.urdf_path is None else pin.buildModelFromUrdf(str(robot.urdf_path),
+                                                                           root)
+        if free is None or free.nv != robot.model.nv + 2:
+            raise ConfigError([("walking.contact_frame", "needs a URDF robot with no locked "
+                                                         "joints")], src)
+        if not free.existFrame(w.contact_frame):
+            raise ConfigError([("walking.contact_frame", f"the robot has no frame "
+                                                         f"'{w.contact_frame}'")], src)
+        foot = free.getFrameId(w.contact_frame)
+    fall_row = (_joint_row(w.fall.link_angle, joints, "walking.fall.link_angle", src)
+                if w.fall else None)
+    return Walker(A, Pi, _joint_row(w.guard.link_angle, joints, "walking.guard.link_angle", src),
+                  w.guard.value, 1.0 if w.guard.direction == "rising" else -1.0,
+                  tuple(w.guard.window), w.steps_per_cycle, w.impact, fall_row,
+                  w.fall.max_abs if w.fall else np.inf, free, foot)
 
 
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:
@@ -392,6 +490,8 @@ class CycleOutcome:
         max_speed: Largest |joint velocity| over the cycle [rad/s].
         finite: Whether every state stayed finite.
         trace: Returns ``(CycleLog, Qd)`` of the cycle (computed on demand).
+        fall: Why a walker fell during the cycle (hybrid loop), or None.
+        impacts: ``(step, by_guard, swing-foot x [m])`` of each impact (walkers).
     """
 
     theta_next: np.ndarray
@@ -405,6 +505,8 @@ class CycleOutcome:
     trace: Callable[[], tuple[CycleLog, np.ndarray]]
     fb_stabilized: float = 0.0
     fb_error: float = 0.0
+    fall: str | None = None
+    impacts: list = field(default_factory=list)
 
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
@@ -429,6 +531,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     n = exp.primitives.n_steps
     Qd, Vd, _ = exp.primitives.desired(theta)
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    if exp.hybrid is not None:
+        q, v = exp.hybrid.initial_state(Qd, Vd)
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
     reason, start, wall_before = None, 1, 0.0
     run_cycle = _cycle_runner(exp, theta)
@@ -442,8 +546,13 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         if "rmp_x" in saved:
             _restore_rmp_states(run_cycle, saved)
     t0 = time.perf_counter()
+    plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
     for cycle in range(start, cycles + 1):
-        out = run_cycle(theta, q, v)
+        if cycle > start:
+            plant = _plant_for_cycle(exp, cycle) or plant
+        out = run_cycle(theta, q, v, plant)
+        for _, by_guard, _ in out.impacts:
+            impacts["guard" if by_guard else "clock"] += 1
         reason = _divergence(exp, out)
         if reason:
             break
@@ -471,6 +580,13 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     if checkpoint is not None:
         checkpoint.clear()
     summary = _seed_summary(exp, seed, rows, reason, wall, steps)
+    if exp.hybrid is not None and exp.hybrid.walker is not None:
+        summary["guard_impacts"], summary["clock_impacts"] = impacts["guard"], impacts["clock"]
+    if exp.hybrid is not None and rows and reason is None and cfg.walking is not None \
+            and cfg.walking.poincare:
+        from feltool.gait import poincare
+
+        summary["poincare"] = poincare(exp, theta, q, v, plant)
     params = exp.split_parameters(theta)
     hist = np.array(history)
     for name in exp.learned_joints:
@@ -482,21 +598,53 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
 
 
 def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOutcome]:
-    """The function that runs one cycle for this experiment's backend and update mode.
+    """The function ``(theta, q, v, plant) -> CycleOutcome`` that runs one cycle for this
+    experiment's backend and update mode; ``plant`` is the simulated world (the known model, or
+    the one an event changed).
 
     A per-step runner carries the RMP states from cycle to cycle in its ``rmp_states``.
     """
     if exp.config.backend == "compiled":
-        return _compiled_runner(exp)
+        run = _compiled_runner(exp)
+        return lambda theta, q, v, plant: run(theta, q, v)
+    if exp.hybrid is not None:
+        return lambda theta, q, v, plant: _hybrid_cycle(exp, theta, q, v, plant)
+    loops: dict[int, ClosedLoop] = {}
+
+    def loop_for(plant: Dynamics) -> ClosedLoop:
+        if plant is exp.dynamics:
+            return exp.loop
+        if id(plant) not in loops:
+            loops.clear()
+            loops[id(plant)] = ClosedLoop(plant, exp.law, exp.loop.actuated, exp.loop.dt,
+                                          exp.loop.substeps, exp.loop.integrator,
+                                          exp.loop.error_rows)
+        return loops[id(plant)]
+
     if exp.config.learning.step == "per_step":
         states = _limit_cycle_states(exp, theta0)
 
-        def per_step(theta, q, v):
-            return _outcome(exp, *_per_step_cycle(exp, theta, q, v, states))
+        def per_step(theta, q, v, plant):
+            return _outcome(exp, *_per_step_cycle(exp, theta, q, v, states, loop_for(plant)))
 
         per_step.rmp_states = states
         return per_step
-    return lambda theta, q, v: _per_cycle(exp, theta, q, v)
+    return lambda theta, q, v, plant: _per_cycle(exp, theta, q, v, loop_for(plant))
+
+
+def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
+    """The simulated world from ``cycle`` on if an event starts then, else None."""
+    backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
+    return plant_for_cycle(exp.robot.model, exp.config.events, cycle, backend)
+
+
+def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
+    """The simulated world at cycle ``start`` (every event up to it applied; resumed runs)."""
+    events = [ev for ev in exp.config.events if ev.cycle <= start]
+    if not events:
+        return exp.dynamics
+    backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
+    return make_dynamics(changed_model(exp.robot.model, events), backend)
 
 
 def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history, traces,
@@ -517,7 +665,7 @@ def _restore_rmp_states(run_cycle, saved: dict) -> None:
         run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
 
 
-def _per_cycle(exp: Experiment, theta: np.ndarray, q, v) -> CycleOutcome:
+def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop) -> CycleOutcome:
     """One cycle on the limit cycle of the current parameters, then one update (eq. 3.6)."""
     Qd, Vd, Ad = exp.primitives.desired(theta)
     R, Rd = exp.law.references(Qd, Vd)
@@ -526,12 +674,27 @@ def _per_cycle(exp: Experiment, theta: np.ndarray, q, v) -> CycleOutcome:
         u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
     else:
         u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
-    log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+    log = loop.run_cycle(q, v, R, Rd, u_ff)
     theta_next = theta
     if exp.learner.n_learned and np.all(np.isfinite(log.v)):
         J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
         theta_next = exp.learner.step(theta, J, log.u_err)
     return _outcome(exp, log, Qd, theta_next)
+
+
+def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> CycleOutcome:
+    """One cycle of the hybrid loop (walkers, allocated motors), then one update (eq. 3.6);
+    the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d."""
+    P, Pv, Pa = exp.primitives.desired(theta)
+    log = exp.hybrid.run_cycle(plant, q, v, P, Pv, Pa)
+    theta_next = theta
+    if log.fall is None and exp.learner.n_learned:
+        _, *derivs = exp.hybrid.jacobian_derivatives(log)
+        J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_err)
+    out = _outcome(exp, log, log.Qd, theta_next)
+    out.fall, out.impacts = log.fall, list(log.impacts)
+    return out
 
 
 def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
@@ -582,9 +745,12 @@ def _limit_cycle_states(exp: Experiment, theta: np.ndarray) -> dict[int, tuple]:
             for i, p in exp.primitives.primitives.items()}
 
 
-def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, tuple]):
+def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, tuple],
+                    loop: ClosedLoop | None = None):
     """One cycle with an update after every step; the RMP states (updated in place in
-    ``states``) run on continuously, their sensitivities propagated alongside."""
+    ``states``) run on continuously, their sensitivities propagated alongside. ``loop``
+    simulates the world (default ``exp.loop``)."""
+    loop = loop or exp.loop
     prims, n, nv = exp.primitives, exp.primitives.n_steps, exp.primitives.nv
     learner, law, dyn = exp.learner, exp.law, exp.dynamics
     theta = theta.copy()
@@ -608,7 +774,7 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             J[0][:, cols] = (np.outer(Dq[:, i], Sq[i][sel]) + np.outer(Dv[:, i], Sv[i][sel])
                              + np.outer(M[:, i], Sa[i][sel]))
         Q[k], V[k], U[k], Urows[k], Uerr[k] = q, v, u_fb, u_rows, u_err
-        q, v = exp.loop.advance(q, v, exp.loop.actuated * (u_ff + u_fb))
+        q, v = loop.advance(q, v, loop.actuated * (u_ff + u_fb))
         for i, p in prims.primitives.items():
             x, S = states[i]
             th = theta[prims.slices[i]]
@@ -619,6 +785,8 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
 
 def _divergence(exp: Experiment, out: CycleOutcome) -> str | None:
     sim = exp.config.sim
+    if out.fall:
+        return out.fall
     if not out.finite:
         return "the state became non-finite"
     if out.max_speed > sim.max_velocity:

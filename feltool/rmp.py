@@ -199,12 +199,20 @@ class RhythmicPrimitive:
         return np.concatenate([w, [g]])
 
 
-def sine_demo(mean: float, amplitude: float, period_s: float, phase: float, t: np.ndarray):
-    """``q(t) = mean + amplitude sin(2 pi t / T + phase)`` and its derivatives ([rad], [s])."""
+def sine_demo(mean: float, amplitude: float, period_s: float, phase: float, t: np.ndarray,
+              harmonics=(), delay: float = 0.0):
+    """``q(t) = mean + amplitude sin(w s + phase) + sum_k A_k sin(k w s + phi_k)`` with
+    ``w = 2 pi / T``, ``s = t - delay T``, harmonics ``(A_k, phi_k)`` for k = 2, 3, ..., and its
+    derivatives ([rad], [s])."""
     w = 2.0 * np.pi / period_s
-    arg = w * t + phase
-    return (mean + amplitude * np.sin(arg), amplitude * w * np.cos(arg),
-            -amplitude * w**2 * np.sin(arg))
+    s = np.asarray(t, dtype=float) - delay * period_s
+    q, v, a = np.full_like(s, mean), np.zeros_like(s), np.zeros_like(s)
+    for k, (amp, ph) in enumerate([(amplitude, phase), *harmonics], start=1):
+        arg = k * w * s + ph
+        q += amp * np.sin(arg)
+        v += amp * k * w * np.cos(arg)
+        a -= amp * (k * w) ** 2 * np.sin(arg)
+    return q, v, a
 
 
 class PrimitiveSet:

@@ -1,0 +1,276 @@
+r"""Hybrid closed loop: walking with a pinned stance foot, guards, impacts, torque allocation.
+
+A walker is modelled with its stance foot pinned (a revolute pivot from the world). Its absolute
+link angles, in stance-relative labels, are linear in the joint angles, :math:`\theta = A q`
+(thesis App. B: :math:`q_{pivot} = \theta_1,\ q_{swing} = \theta_2 - \theta_1,\
+q_{torso} = \theta_3 - \theta_1`); :class:`Walker` is the one place that converts. Each joint's
+RMP describes, in absolute angles, the link that the joint moves in the cycle's first step
+("gait coordinates" p); with stance label s (0 in the first step, toggled by each impact) the
+desired joint angles are
+
+.. math::
+
+    q_d = G_s\,p_d, \qquad G_s = A^{-1}\Pi^s,
+
+where :math:`\Pi` exchanges the stance and swing legs (§3.2.2: :math:`X^+ = [q_2, q_1, q_3, \dots]`).
+A step ends when the guard :math:`a^\top q` crosses its value inside the armed window (or by the
+clock at the window's end). The impact is either the thesis's relabelling
+(:math:`q^+ = A^{-1}\Pi A q^-`, same for :math:`\dot q`) or a rigid, perfectly inelastic foot impact:
+with the base freed (model :math:`q_e = (x, z, q)`), the impulse :math:`F` at the swing foot solves
+
+.. math::
+
+    \begin{bmatrix} M_e & -J^\top \\ J & 0 \end{bmatrix}
+    \begin{bmatrix} \dot q_e^+ \\ F \end{bmatrix} =
+    \begin{bmatrix} M_e \dot q_e^- \\ 0 \end{bmatrix},\qquad \dot q_e^- = (0, 0, \dot q^-),
+
+(Grizzle's planar impact map), followed by the relabelling. Joint torques
+:math:`\tau = u_{ff} + u_{fb}` are mapped onto the motors by :class:`Allocation`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from feltool.control import FeedbackLaw
+from feltool.dynamics import Dynamics
+
+
+@dataclass
+class Allocation:
+    r"""Motors and the allocation of joint torques onto them.
+
+    Attributes:
+        B: ``(nv, k)`` generalized force of each motor per unit torque (columns :math:`b_m`).
+        rule: ``inertia_weighted``: :math:`u = (B^\top M^{-1} B)^{-1} B^\top M^{-1}\tau` (the
+            motor torques whose accelerations are closest, in the kinetic-energy metric, to those
+            :math:`\tau` would produce); ``pseudo_inverse``: :math:`u = B^+\tau`.
+        model: The known model, whose :math:`M(q)` the controller uses.
+    """
+
+    B: np.ndarray
+    rule: str
+    model: pin.Model
+    data: pin.Data = field(init=False)
+
+    def __post_init__(self):
+        self.data = self.model.createData()
+        self._pinv = np.linalg.pinv(self.B)
+
+    def joint_torque(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The joint torques :math:`B u` in [N m] the motors deliver for a wanted ``tau``."""
+        if self.rule == "pseudo_inverse":
+            return self.B @ (self._pinv @ tau)
+        M = pin.crba(self.model, self.data, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        MiB = np.linalg.solve(M, self.B)
+        u = np.linalg.solve(self.B.T @ MiB, MiB.T @ tau)
+        return self.B @ u
+
+
+@dataclass
+class Walker:
+    """Hybrid walking: coordinates, guard, impact and fall check (all from the config).
+
+    Attributes:
+        A: ``(nv, nv)`` absolute link angles from joint angles, :math:`\\theta = A q`.
+        Pi: ``(nv, nv)`` permutation exchanging stance and swing in absolute angles.
+        guard_row, guard_value, guard_sign: the step ends when
+            ``guard_sign * (guard_row @ q - guard_value) >= 0`` inside the window.
+        window: armed fractions of the nominal step.
+        steps_per_cycle: impacts per cycle.
+        impact: ``relabel`` or ``rigid``.
+        fall_row, fall_max: fall when ``|fall_row @ q| > fall_max`` [rad].
+        free_model: the model with a free planar base (x, z), for rigid impacts and foot positions.
+        foot_frame: frame id of the swing foot in ``free_model`` (or None).
+    """
+
+    A: np.ndarray
+    Pi: np.ndarray
+    guard_row: np.ndarray
+    guard_value: float
+    guard_sign: float
+    window: tuple[float, float]
+    steps_per_cycle: int
+    impact: str = "relabel"
+    fall_row: np.ndarray | None = None
+    fall_max: float = np.inf
+    free_model: pin.Model | None = None
+    foot_frame: int | None = None
+
+    def __post_init__(self):
+        self.A_inv = np.linalg.inv(self.A)
+        self.G = (self.A_inv, self.A_inv @ self.Pi)
+        self.R = self.A_inv @ self.Pi @ self.A
+        if self.free_model is not None:
+            self.free_data = self.free_model.createData()
+
+    # -- the one place absolute (thesis) <-> relative (Pinocchio) angles are converted -----------
+    def absolute(self, q: np.ndarray) -> np.ndarray:
+        """Absolute link angles :math:`\\theta = A q` (rows of a trajectory also work) [rad]."""
+        return q @ self.A.T
+
+    def relative(self, theta: np.ndarray) -> np.ndarray:
+        """Joint angles :math:`q = A^{-1}\\theta` [rad]."""
+        return theta @ self.A_inv.T
+
+    def to_model(self, p: np.ndarray, stance: int) -> np.ndarray:
+        """Joint coordinates from gait coordinates at stance label ``stance``: :math:`G_s p`."""
+        return self.G[stance % 2] @ p
+
+    def foot_x(self, q: np.ndarray) -> float:
+        """Horizontal position of the swing foot relative to the stance foot, in [m]."""
+        if self.free_model is None:
+            return float("nan")
+        qe = np.concatenate([[0.0, 0.0], q])
+        pin.framesForwardKinematics(self.free_model, self.free_data, qe)
+        return float(self.free_data.oMf[self.foot_frame].translation[0])
+
+    def apply_impact(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """State after the impact (and the relabelling), in joint coordinates."""
+        if self.impact == "rigid":
+            model, data = self.free_model, self.free_data
+            qe, ve = np.concatenate([[0.0, 0.0], q]), np.concatenate([[0.0, 0.0], v])
+            M = pin.crba(model, data, qe)
+            M = np.triu(M) + np.triu(M, 1).T
+            pin.computeJointJacobians(model, data, qe)
+            pin.updateFramePlacements(model, data)
+            J = pin.getFrameJacobian(model, data, self.foot_frame,
+                                     pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[[0, 2], :]
+            n = M.shape[0]
+            K = np.block([[M, -J.T], [J, np.zeros((2, 2))]])
+            sol = np.linalg.solve(K, np.concatenate([M @ ve, np.zeros(2)]))
+            v = sol[2:n]
+        return self.R @ q, self.R @ v
+
+    def guard(self, q: np.ndarray) -> bool:
+        return bool(self.guard_sign * (self.guard_row @ q - self.guard_value) >= 0.0)
+
+    def fallen(self, q: np.ndarray, v: np.ndarray) -> str | None:
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            return "the state became non-finite"
+        if self.fall_row is not None:
+            angle = float(self.fall_row @ q)
+            if abs(angle) > self.fall_max:
+                return (f"the checked link's angle reached {angle:.3g} rad "
+                        f"(walking.fall.max_abs = {self.fall_max}): the robot fell")
+        return None
+
+
+@dataclass
+class HybridLog:
+    """One cycle of the hybrid loop (model coordinates), like :class:`feltool.simulate.CycleLog`.
+
+    Attributes:
+        q, v, u_fb: system positions [rad], velocities [rad/s], feedback [N m], ``(n, nv)``.
+        u_rows, u_err: each controller's own output and the learning signal (the error
+            controllers' joint torques), ``(n, nv)``, as in :class:`feltool.simulate.CycleLog`.
+        q_end, v_end: state after the last step (stance label 0 again after a full cycle).
+        Qd, Vd, Ad: desired trajectory in joint coordinates, ``(n, nv)``.
+        stance: stance label per step ``(n,)``.
+        impacts: ``(step, by_guard, swing-foot x [m])`` of each impact.
+        fall: why the robot fell (the cycle then stops early), or None.
+    """
+
+    q: np.ndarray
+    v: np.ndarray
+    u_fb: np.ndarray
+    q_end: np.ndarray
+    v_end: np.ndarray
+    Qd: np.ndarray
+    Vd: np.ndarray
+    Ad: np.ndarray
+    stance: np.ndarray
+    impacts: list = field(default_factory=list)
+    fall: str | None = None
+    u_rows: np.ndarray | None = None
+    u_err: np.ndarray | None = None
+
+
+class HybridLoop:
+    """Closed loop stepped one control step at a time, with allocation and walking events.
+
+    Args:
+        known: The known model (feedforward and allocation).
+        law: Feedback laws (in joint coordinates).
+        allocation: Motor allocation, or None for "every non-passive joint is a motor".
+        walker: Hybrid walking, or None for a continuous robot.
+        actuated: ``(nv,)`` selection used when ``allocation`` is None.
+        dt, substeps, integrator, error_rows: as :class:`feltool.simulate.ClosedLoop`.
+    """
+
+    def __init__(self, known: Dynamics, law: FeedbackLaw, allocation: Allocation | None,
+                 walker: Walker | None, actuated: np.ndarray, dt: float, substeps: int = 1,
+                 integrator: str = "semi_implicit_euler", error_rows: np.ndarray | None = None):
+        self.known, self.law, self.allocation, self.walker = known, law, allocation, walker
+        self.actuated = np.asarray(actuated, dtype=float)
+        self.error_rows = (np.zeros(len(self.actuated)) if error_rows is None
+                           else np.asarray(error_rows, dtype=float))
+        self.dt, self.substeps, self.integrator = dt, substeps, integrator
+
+    def initial_state(self, P: np.ndarray, Pv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Start on the desired trajectory (stance label 0), stabilized quantities on target."""
+        G = self.walker.G[0] if self.walker else np.eye(len(P[0]))
+        return self.law.consistent_state(G @ P[0], G @ Pv[0])
+
+    def run_cycle(self, plant: Dynamics, q: np.ndarray, v: np.ndarray, P: np.ndarray,
+                  Pv: np.ndarray, Pa: np.ndarray) -> HybridLog:
+        """One cycle from ``(q, v)`` with desired gait-coordinate trajectories ``P, Pv, Pa``
+        ``(n, nv)``; ``plant`` is the simulated world (the known model, or a changed one)."""
+        n, nv = P.shape
+        W, law, alloc = self.walker, self.law, self.allocation
+        Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n, nv)) for _ in range(8))
+        labels = np.zeros(n, dtype=int)
+        impacts, stance, fall = [], 0, None
+        h = self.dt / self.substeps
+        semi = self.integrator == "semi_implicit_euler"
+        Ts = n * self.dt / W.steps_per_cycle if W else None
+        for k in range(n):
+            if W:
+                G = W.G[stance]
+                qd, vd, ad = G @ P[k], G @ Pv[k], G @ Pa[k]
+            else:
+                qd, vd, ad = P[k], Pv[k], Pa[k]
+            Q[k], V[k], Qd[k], Vd[k], Ad[k], labels[k] = q, v, qd, vd, ad, stance
+            r, rd = law.references(qd[None], vd[None])
+            U[k], Urows[k], Uerr[k] = law.terms(q, v, r[0], rd[0], self.error_rows)
+            tau = self.known.inverse(qd, vd, ad) + U[k]
+            tau = alloc.joint_torque(q, tau) if alloc else self.actuated * tau
+            for _ in range(self.substeps):
+                a = plant.forward(q, v, tau)
+                if semi:
+                    v = v + h * a
+                    q = q + h * v
+                else:
+                    q, v = q + h * v, v + h * a
+            fall = W.fallen(q, v) if W else (None if np.all(np.isfinite(q)) and
+                                             np.all(np.isfinite(v)) else
+                                             "the state became non-finite")
+            if fall:
+                k_end = k + 1
+                return HybridLog(Q[:k_end], V[:k_end], U[:k_end], q, v, Qd[:k_end], Vd[:k_end],
+                                 Ad[:k_end], labels[:k_end], impacts, fall, Urows[:k_end],
+                                 Uerr[:k_end])
+            if W and len(impacts) < W.steps_per_cycle:
+                t = (k + 1) * self.dt
+                j = len(impacts)
+                lo, hi = (j + W.window[0]) * Ts, (j + W.window[1]) * Ts
+                by_guard = t >= lo - 1e-9 and W.guard(q)
+                if by_guard or t >= hi - 1e-9:
+                    impacts.append((k + 1, bool(by_guard), W.foot_x(q)))
+                    q, v = W.apply_impact(q, v)
+                    stance = 1 - stance
+        return HybridLog(Q, V, U, q, v, Qd, Vd, Ad, labels, impacts, None, Urows, Uerr)
+
+    def jacobian_derivatives(self, log: HybridLog) -> tuple:
+        """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with
+        respect to the gait coordinates (chain rule through :math:`q_d = G_s p_d`)."""
+        u_ff, Dq, Dv, M = self.known.inverse_derivatives_batch(log.Qd, log.Vd, log.Ad)
+        if self.walker is None:
+            return u_ff, Dq, Dv, M
+        Gs = np.stack(self.walker.G)[log.stance]  # (n, nv, nv)
+        mul = lambda D: np.einsum("kij,kjl->kil", D, Gs)  # noqa: E731
+        return u_ff, mul(Dq), mul(Dv), mul(M)

@@ -1,0 +1,182 @@
+"""The three-link biped: Pinocchio against the corrected closed forms of App. B, the one
+absolute <-> relative conversion, the impact maps, and the fall check."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from feltool.experiment import load_experiment, run_seed
+from feltool.robot import load_robot
+
+from .conftest import CONFIGS
+
+M_LEG, M_H, M_T, R, L, G = 15.0, 10.0, 40.0, 1.0, 1.0, 9.8  # Table B.1
+T = np.array([[1.0, 0, 0], [1, 1, 0], [1, 0, 1]])  # theta = T q (thesis absolute from relative)
+
+
+def closed_form(theta, dtheta):
+    """Eq. B.2-B.4 in absolute angles, with the two errata corrected: c13 uses dtheta3 (not
+    dtheta1) and the torso's gravity entry is -g M_T l sin(theta3) (not +1/2 g M_T l sin)."""
+    t1, t2, t3 = theta
+    c12, c13, s12, s13 = np.cos(t1 - t2), np.cos(t1 - t3), np.sin(t1 - t2), np.sin(t1 - t3)
+    M = np.array([[(1.25 * M_LEG + M_H + M_T) * R**2, -0.5 * M_LEG * R**2 * c12, M_T * R * L * c13],
+                  [-0.5 * M_LEG * R**2 * c12, 0.25 * M_LEG * R**2, 0.0],
+                  [M_T * R * L * c13, 0.0, M_T * L**2]])
+    C = np.array([[0.0, -0.5 * M_LEG * R**2 * s12 * dtheta[1], M_T * R * L * s13 * dtheta[2]],
+                  [0.5 * M_LEG * R**2 * s12 * dtheta[0], 0.0, 0.0],
+                  [-M_T * R * L * s13 * dtheta[0], 0.0, 0.0]])
+    g = np.array([-0.5 * G * (2 * M_H + 3 * M_LEG + 2 * M_T) * R * np.sin(t1),
+                  0.5 * G * M_LEG * R * np.sin(t2),
+                  -G * M_T * L * np.sin(t3)])
+    return M, C @ dtheta, g
+
+
+def test_pinocchio_matches_corrected_appendix_b(rng):
+    robot = load_robot("three_link_biped")
+    robot.set_gravity(G)
+    model, data = robot.model, robot.model.createData()
+    for _ in range(200):
+        q, v = rng.uniform(-1.2, 1.2, 3), rng.normal(0, 3, 3)
+        M_abs, c_abs, g_abs = closed_form(T @ q, T @ v)
+        M = pin.crba(model, data, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        g = pin.computeGeneralizedGravity(model, data, q)
+        c = pin.rnea(model, data, q, v, np.zeros(3)) - g
+        # Generalized forces transform with T^T (constant T): M_pin = T^T M_abs T, etc.
+        np.testing.assert_allclose(M, T.T @ M_abs @ T, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(c, T.T @ c_abs, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(g, T.T @ g_abs, atol=1e-9, rtol=0)
+
+
+def test_thesis_printed_forms_are_wrong_where_the_errata_say(rng):
+    robot = load_robot("three_link_biped")
+    robot.set_gravity(G)
+    model, data = robot.model, robot.model.createData()
+    q = np.array([0.1, -0.3, 0.6])
+    g = pin.computeGeneralizedGravity(model, data, q)
+    printed = np.array([0.0, 0.0, 0.5 * G * M_T * L * np.sin((T @ q)[2])])
+    assert abs((np.linalg.solve(T.T, g))[2] - printed[2]) > 1.0
+
+
+@pytest.fixture(scope="module")
+def biped():
+    return load_experiment(CONFIGS / "biped_torso.yaml")
+
+
+def test_absolute_relative_conversion_is_the_appendix_map(biped):
+    W = biped.hybrid.walker
+    np.testing.assert_allclose(W.A, T)
+    q = np.array([0.1, -0.25, 0.4])
+    np.testing.assert_allclose(W.relative(W.absolute(q)), q)
+    # Relabelling exchanges the legs' absolute angles and keeps the torso's: X+ = [q2, q1, q3].
+    th = W.absolute(q)
+    q_plus, _ = W.apply_impact(q, np.zeros(3))
+    np.testing.assert_allclose(W.absolute(q_plus), th[[1, 0, 2]])
+
+
+def test_rigid_impact_is_inelastic_and_conserves_momentum_about_the_new_foot(biped, rng):
+    W = biped.hybrid.walker
+    model, data = W.free_model, W.free_model.createData()
+    W.impact = "rigid"
+    try:
+        for _ in range(5):
+            th1 = rng.uniform(0.1, 0.3)
+            q = W.relative(np.array([th1, -th1, rng.uniform(0.3, 0.7)]))  # both feet down
+            v = rng.normal(0, 1.0, 3)
+            foot = np.array([2 * R * np.sin(th1), 0.0, 0.0])
+
+            def momentum_about_foot(qq, vv, p):
+                qe, ve = np.r_[0.0, 0.0, qq], np.r_[0.0, 0.0, vv]
+                h = pin.computeCentroidalMomentum(model, data, qe, ve)
+                com = pin.centerOfMass(model, data, qe)
+                return h.angular + np.cross(com - p, h.linear), 0.5 * ve @ pin.crba(model, data, qe) @ ve
+
+            L_before, E_before = momentum_about_foot(q, v, foot)
+            # The post-impact state in the NEW labels has its stance foot at the origin; map it
+            # back to absolute angular velocities to compare in the same (old) frame.
+            q_plus, v_plus = W.apply_impact(q, v)
+            th_dot_new = W.absolute(v_plus)
+            th_dot_old = th_dot_new[[1, 0, 2]]
+            v_old = W.relative(th_dot_old)
+            qe, ve = np.r_[0.0, 0.0, q], np.r_[0.0, 0.0, v_old]
+            # The old-labelled model's base must move so that the swing foot is at rest.
+            pin.computeJointJacobians(model, data, qe)
+            pin.updateFramePlacements(model, data)
+            J = pin.getFrameJacobian(model, data, W.foot_frame,
+                                     pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[[0, 2]]
+            base = -np.linalg.solve(J[:, :2], J[:, 2:] @ v_old)
+            ve = np.r_[base, v_old]
+            h = pin.computeCentroidalMomentum(model, data, qe, ve)
+            com = pin.centerOfMass(model, data, qe)
+            L_after = h.angular + np.cross(com - foot, h.linear)
+            E_after = 0.5 * ve @ pin.crba(model, data, qe) @ ve
+            np.testing.assert_allclose(L_after, L_before, atol=1e-9)
+            assert E_after <= E_before + 1e-9
+    finally:
+        W.impact = "relabel"
+
+
+def test_a_fall_stops_the_seed_as_diverged():
+    exp = load_experiment(CONFIGS / "biped_torso.yaml",
+                          ["walking.fall.max_abs=0.05", "sim.cycles=3"])
+    result = run_seed(exp, 0, 3)
+    assert result.summary["diverged"] is True
+    assert "fell" in result.summary["diverged_reason"]
+
+
+@pytest.fixture(scope="module")
+def walked():
+    """Seed 0 learning the torso for 20 cycles while walking, with the Poincaré analysis."""
+    exp = load_experiment(CONFIGS / "biped_torso.yaml")
+    return exp, run_seed(exp, 0, 20)
+
+
+def test_the_biped_walks_and_fel_reduces_the_summed_feedback(walked):
+    exp, result = walked
+    s = result.summary
+    assert s["diverged"] is False and s["cycles"] == 20
+    assert s["fb_ratio"] <= 0.4  # full run: <= 0.16 after 150 cycles (docs/biped.md)
+    # The system torso stays within 0.01 rad of pi/6 over the last cycle.
+    from feltool.experiment import stabilization_errors
+
+    assert stabilization_errors(exp, result.traces)["torso_hip_system"] < 0.01
+    # Every impact came at the nominal step time (2 per cycle).
+    assert s["guard_impacts"] + s["clock_impacts"] == 40
+
+
+def test_poincare_map_has_a_stable_fixed_point(walked):
+    _, result = walked
+    p = result.summary["poincare"]
+    assert p["fixed_point_found"] and p["fixed_point_residual"] < 1e-8
+    assert p["stable"] and max(p["eigenvalues_abs"]) < 1.0
+    assert p["impacts_per_cycle"] == 2
+    # Two steps of about 2 r sin(pi/18) each (legs at about +-pi/18 at the impacts).
+    assert 0.8 * 4 * np.sin(np.pi / 18) < p["stride_length_m"] < 1.1 * 4 * np.sin(np.pi / 18)
+    assert p["speed_m_per_s"] == pytest.approx(p["stride_length_m"] / 1.0)
+
+
+def test_biped_slope_event_feedback_rises_then_returns():
+    exp = load_experiment(CONFIGS / "biped_torso.yaml",
+                          ["walking.poincare=false",
+                           "events=[{cycle: 30, kind: slope, angle: 0.05}]"])
+    result = run_seed(exp, 0, 60)
+    assert result.summary["diverged"] is False
+    fb = np.array([r["fb_abs_mean_error"] for r in result.rows])
+    before = fb[28]  # cycle 29, the last before the 2.9 degree downhill slope
+    assert fb[29] > 1.2 * before and fb[29:].max() > 1.8 * before  # the feedback rises
+    assert fb[-1] <= 2.0 * before and fb[-1] < 0.8 * fb[29:].max()  # and FEL brings it down
+
+
+def test_compiled_backend_refuses_walkers_and_events():
+    from feltool.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        load_experiment(CONFIGS / "biped_torso.yaml", ["backend=compiled"])
+    assert "backend" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        load_experiment(CONFIGS / "two_link_standard.yaml",
+                        ["backend=compiled", "events=[{cycle: 3, kind: payload, frame: tip, "
+                                             "mass: 0.2}]"])
+    assert "events" in str(err.value)
