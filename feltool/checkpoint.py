@@ -85,7 +85,12 @@ class Checkpointer:
     def clear(self) -> None:
         self.arrays.unlink(missing_ok=True)
         self.meta.unlink(missing_ok=True)
-        try:
-            self.directory.rmdir()  # only when no other seed still has a checkpoint
-        except OSError:
-            pass
+
+
+def remove_empty(directory: Path) -> None:
+    """Remove a checkpoint directory once every seed is done (only if it is empty). Called by
+    the process that owns the run, never by workers, which may still be writing into it."""
+    try:
+        Path(directory).rmdir()
+    except OSError:
+        pass

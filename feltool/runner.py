@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from feltool import __version__
-from feltool.checkpoint import Interrupted, request_stop, reset_stop, stop_requested
+from feltool.checkpoint import Interrupted, remove_empty, request_stop, reset_stop, stop_requested
 from feltool.config import config_to_yaml
 from feltool.errors import InputError
 from feltool.executors import Task, inline, make_executor, run_task
@@ -75,6 +75,7 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
                                 sum(cycles for _ in tasks), show_progress, on_cycle):
         save_seed_result(exp, out_dir, result)
         results[task.seed] = result
+    remove_empty(out_dir / "checkpoints")
     summary = write_results(exp, out_dir, [results[s] for s in seeds])
     if figures:
         from feltool.plots import draw_figures

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from feltool.checkpoint import remove_empty
 from feltool.config import apply_overrides, read_yaml
 from feltool.errors import ConfigError, InputError
 from feltool.executors import Task
@@ -105,6 +106,7 @@ def run_sweep(config: str | Path, grid: dict[str, list] | None, out_dir: Path,
     for i, (exp, point) in enumerate(zip(exps, meta["points"])):
         run_dir = out_dir / f"point-{i:03d}"
         results = [load_seed_result(run_dir, s) for s in meta["seeds"]]
+        remove_empty(run_dir / "checkpoints")
         summary = write_results(exp, run_dir, results)
         for s in summary["seeds"]:
             rows.append({"point": i, **point, "seed": s["seed"], "fb_initial": s["fb_initial"],
