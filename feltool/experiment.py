@@ -21,6 +21,8 @@ from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.fel import FeedbackErrorLearner, feedforward
+from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
+from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
 from feltool.simulate import ClosedLoop, CycleLog
@@ -41,6 +43,9 @@ class Experiment:
         loop: Closed-loop simulator.
         learner: The FEL learner.
         init: Per learned joint: ``(slice, weight std, goal centre, goal spread, kind)``.
+        plant: The simulated robot's dynamics (``loop.dynamics``); ``dynamics`` itself unless
+            the config has a ``plant:`` block.
+        model_learner: Classic FEL of an inverse-model correction (``learning.model``), or None.
     """
 
     config: ExperimentConfig
@@ -54,6 +59,8 @@ class Experiment:
     learner: FeedbackErrorLearner
     init: list[tuple[slice, float, float, float, str]] = field(default_factory=list)
     source: Path | None = None
+    plant: Dynamics | None = None
+    model_learner: ModelLearner | None = None
 
     @property
     def learned_joints(self) -> list[str]:
@@ -129,6 +136,8 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
             problems.append(("robot", str(exc)))
     if robot is not None:
         problems += _name_problems(raw, robot)
+        if cfg is not None and cfg.plant is not None:
+            problems += plant_problems(cfg.plant, robot, source.parent if source else None)
     if problems:
         # The same path may be reported by the schema and by the name checks; keep both texts.
         raise ConfigError(_dedupe(problems), src)
@@ -286,9 +295,37 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                                    np.array(is_goal, dtype=bool), error_mask,
                                    np.array(rates), L.update, L.damping, L.sensitivity,
                                    L.fd_epsilon)
-    loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator)
+    plant = dynamics
+    if cfg.plant is not None:
+        plant_rb = reduce_robot(plant_robot(cfg.plant, full_robot,
+                                            source.parent if source else None), locked)
+        plant_rb.set_gravity(cfg.gravity)
+        plant = make_plant(cfg.plant, plant_rb, joints, make_dynamics(plant_rb.model, cfg.backend))
+    model_learner = _model_learner(cfg, robot, joints, actuated, source)
+    loop = ClosedLoop(plant, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator)
     return Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
-                      init, source)
+                      init, source, plant, model_learner)
+
+
+def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actuated: np.ndarray,
+                   source: Path | None) -> ModelLearner | None:
+    """The classic-FEL learner of ``learning.model`` (None when absent)."""
+    M = cfg.learning.model
+    if M is None:
+        return None
+    problems = []
+    if cfg.learning.step == "per_step":
+        problems.append(("learning.model", "needs learning.step: per_cycle (the trajectory "
+                                           "learner's per_step loop has no model correction)"))
+    if M.step == "per_step" and M.update != "gradient":
+        problems.append(("learning.model.update", "per_step learning supports only 'gradient'"))
+    if problems:
+        raise ConfigError(problems, str(source) if source else None)
+    if M.features == "regressor":
+        features = RegressorFeatures(robot.model)
+    else:
+        features = PhaseBasisFeatures(cfg.steps_per_cycle, len(joints), M.basis, M.width, joints)
+    return ModelLearner(features, actuated.astype(float), M.rate, M.update, M.step, M.damping)
 
 
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:
@@ -343,6 +380,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     t0 = time.perf_counter()
     steps = 0
     rmp_states = _limit_cycle_states(exp, theta)
+    model = exp.model_learner
+    theta_m = model.initial_parameters() if model else None
+    model_history = [theta_m]
     for cycle in range(1, cycles + 1):
         if cfg.learning.step == "per_step":
             log, Qd, Vd, theta_next = _per_step_cycle(exp, theta, q, v, rmp_states)
@@ -354,7 +394,11 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
                 u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
             else:
                 u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
-            log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+            if model is None:
+                log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+            else:
+                log, theta_m_next = model.run_cycle(exp.loop, q, v, R, Rd, u_ff, (Qd, Vd, Ad),
+                                                    theta_m)
         steps += n
         reason = _divergence(exp, log, Qd)
         if reason:
@@ -364,6 +408,10 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
             theta_next = exp.learner.step(theta, J, log.u_fb)
         row = _metrics(exp, seed, cycle, log, Qd, theta)
+        if model is not None:
+            row["model_param_norm"] = float(np.linalg.norm(theta_m))
+            theta_m = theta_m_next
+            model_history.append(theta_m)
         rows.append(row)
         if cycle == 1:
             traces.update(_trace("first", log, Qd))
@@ -384,6 +432,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         cols = [c for c, p in enumerate(exp.learner.learned) if sl.start <= p < sl.stop]
         params[f"{name}.weights_history"] = hist[:, cols[:-1]]
         params[f"{name}.goal_history"] = hist[:, cols[-1]]
+    if model is not None:
+        params["model.theta"] = theta_m
+        params["model.theta_history"] = np.array(model_history)
     return SeedResult(seed, rows, summary, params, traces)
 
 
