@@ -147,18 +147,23 @@ class ModelLearningConfig(Strict):
         "Phi: regressor = Pinocchio's joint-torque regressor, so theta_m are corrections of the "
         "10 inertial parameters per body [m, m c, I at the joint frame origin]; phase_basis = "
         "normalised von Mises functions of the phase, one set per joint, theta_m in [N m].")
+    error: Literal["all_feedback", "tracking"] | list[str] = Field("all_feedback", description=""
+        "Error signal: all actuated feedback (Kawato's FEL), only the tracking joints' feedback "
+        "(leaves the stabilizing feedback to trajectory FEL when both run), or a list of joints.")
     basis: int = Field(20, ge=1, le=1000, description="Number of phase basis functions per "
                        "joint (phase_basis only).")
     width: PositiveFloat | None = Field(None, description="Width h of the phase basis [-] "
                                         "(phase_basis only); default basis / 2.")
-    update: Literal["gradient", "gauss_newton"] = Field("gauss_newton", description="gradient: "
+    update: Literal["gradient", "gauss_newton"] = Field("gradient", description="gradient: "
         "eq. 3.4, theta_m += rate * sum_k Phi_k^T e_k; gauss_newton: the Levenberg-Marquardt "
-        "step rate * (Phi^T Phi + lambda I)^-1 Phi^T e over the cycle (per_cycle only).")
+        "step rate * (Phi^T Phi + lambda I)^-1 Phi^T e over the cycle (per_cycle only; fast "
+        "alone, but it interferes with trajectory FEL).")
     step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
         "cycle or after every control step (per_step: gradient only).")
-    rate: NonNegFloat = Field(0.5, description="Learning rate: the fraction of the "
-        "Levenberg-Marquardt step taken [-] (gauss_newton), or alpha of eq. 3.4 (gradient), in "
-        "[theta_m units / (N m)^2 per sample]; see docs/model_learning.md for how to set it.")
+    rate: NonNegFloat = Field(description="Learning rate alpha_m (required; its unit depends on "
+        "the features): gradient: per sample and cycle, in [theta_m unit / (N m)^2] -- stable "
+        "below 2 / (largest eigenvalue of sum_k Phi_k^T Phi_k); gauss_newton: the fraction of the "
+        "Levenberg-Marquardt step [-]. See docs/model_learning.md.")
     damping: PositiveFloat = Field(1.0e-6, description="Levenberg-Marquardt damping, relative "
                                    "to the mean diagonal of Phi^T Phi [-]; directions the motion "
                                    "does not excite are then left unchanged.")

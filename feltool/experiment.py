@@ -325,7 +325,18 @@ def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actua
         features = RegressorFeatures(robot.model)
     else:
         features = PhaseBasisFeatures(cfg.steps_per_cycle, len(joints), M.basis, M.width, joints)
-    return ModelLearner(features, actuated.astype(float), M.rate, M.update, M.step, M.damping)
+    if M.error == "all_feedback":
+        mask = actuated.astype(float)
+    elif M.error == "tracking":
+        mask = np.array([1.0 if cfg.joints[n].role == "track" else 0.0 for n in joints])
+    else:
+        unknown = [n for n in M.error if n not in joints]
+        if unknown:
+            raise ConfigError([("learning.model.error", f"not moving joints of the model: "
+                                                        f"{', '.join(unknown)}")],
+                              str(source) if source else None)
+        mask = np.array([1.0 if n in M.error else 0.0 for n in joints])
+    return ModelLearner(features, mask * actuated, M.rate, M.update, M.step, M.damping)
 
 
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:
