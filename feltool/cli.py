@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from feltool import __version__
+from feltool.checkpoint import Interrupted
 from feltool.errors import FeltoolError, InputError
 
 
@@ -57,8 +58,17 @@ def _load(config: str, overrides: list[str]):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from feltool.runner import default_out_dir, run_experiment
+    from feltool.runner import default_out_dir, resume_run, run_experiment
 
+    progress = args.progress and sys.stderr.isatty()
+    if args.resume is not None:
+        if args.config is not None:
+            raise InputError("give either CONFIG or --resume RUN_DIR, not both")
+        summary = resume_run(args.resume, args.workers, progress)
+        print_summary(summary, args.resume)
+        return 1 if summary["aggregate"]["n_diverged"] else 0
+    if args.config is None:
+        raise InputError("run needs a CONFIG (or --resume RUN_DIR)")
     overrides = list(args.set or [])
     if args.cycles is not None:
         overrides.append(f"sim.cycles={args.cycles}")
@@ -66,8 +76,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         overrides.append(f"seeds={parse_seeds(args.seeds)}")
     exp, raw = _load(args.config, overrides)
     out_dir = args.out or default_out_dir(exp.config.name)
-    summary = run_experiment(exp, raw, out_dir, workers=args.workers,
-                             show_progress=args.progress and sys.stderr.isatty())
+    try:
+        summary = run_experiment(exp, raw, out_dir, workers=args.workers, show_progress=progress)
+    except Interrupted as exc:
+        raise Interrupted(f"{exc}; continue with: feltool run --resume {out_dir}") from None
     print_summary(summary, out_dir)
     return 1 if summary["aggregate"]["n_diverged"] else 0
 
@@ -149,7 +161,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run an experiment over its seeds, write a run directory")
-    p.add_argument("config", help="experiment YAML, or the name of a bundled config")
+    p.add_argument("config", nargs="?", help="experiment YAML, or the name of a bundled config")
+    p.add_argument("--resume", type=Path, metavar="RUN_DIR",
+                   help="continue an interrupted run where it stopped")
     p.add_argument("--seeds", help="seeds to run, e.g. 0-19 or 0,3,7 (default: the config's)")
     p.add_argument("--cycles", type=_positive_int, help="learning cycles per seed")
     p.add_argument("--out", type=Path, help="run directory (default runs/<name>-<UTC time>)")

@@ -248,9 +248,10 @@ class LearningConfig(Strict):
     rates: Rates = Field(default_factory=Rates, description="Learning rates.")
     damping: PositiveFloat = Field(1.0e-2, description="Levenberg-Marquardt damping, relative to "
                                    "the mean diagonal of J^T J [-].")
-    sensitivity: Literal["exact", "finite_difference"] = Field("exact", description="How "
-        "d u_ff / d theta is computed: exact (RMP sensitivity x RNEA derivatives) or the "
-        "thesis's numerical differentiation.")
+    sensitivity: Literal["exact", "finite_difference", "casadi"] = Field("exact", description=
+        "How d u_ff / d theta is computed: exact (RMP sensitivity x Pinocchio's RNEA "
+        "derivatives), the thesis's numerical differentiation, or CasADi's algorithmic "
+        "differentiation through the RMP and a symbolic RNEA.")
     fd_epsilon: PositiveFloat = Field(1.0e-6, description="Finite-difference step, relative "
                                       "to max(1, |theta_i|) [-].")
     model: ModelLearningConfig | None = Field(None, description="Also learn an inverse-model "
@@ -267,8 +268,9 @@ class ExperimentConfig(Strict):
                        "the config file), or example-robot-data:NAME.")
     gravity: FiniteFloat | list[FiniteFloat] = Field(9.8, description="Gravity in [m/s^2]: a "
         "magnitude along the world's -z, or a 3-vector. The thesis uses 9.8.")
-    backend: Literal["pinocchio"] = Field("pinocchio", description="Dynamics backend of the "
-                                          "known models.")
+    backend: Literal["pinocchio", "casadi", "compiled"] = Field("pinocchio", description=
+        "Known models: Pinocchio; CasADi symbolic expressions built from the same model; or "
+        "compiled: a whole learning cycle generated to C and compiled (cached on disk).")
     period_s: PositiveFloat = Field(description="Period T of the rhythmic motion in [s].")
     sim: SimConfig = Field(default_factory=SimConfig, description="Simulation settings.")
     primitives: PrimitiveConfig = Field(default_factory=PrimitiveConfig,
@@ -298,13 +300,19 @@ class ExperimentConfig(Strict):
             raise ValueError("needs at least one seed")
         return s
 
-    @model_validator(mode="after")
-    def _cross_checks(self) -> ExperimentConfig:
+    def problems(self) -> list[tuple[str, str]]:
+        """Checks across fields, as ``(yaml_path, message)`` pairs."""
         steps = self.period_s * self.sim.rate_hz
         if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 2:
-            raise ValueError(f"period_s * sim.rate_hz = {steps:g} samples per cycle; it must be "
-                             "a whole number of at least 2")
-        return self
+            return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle; it "
+                                 "must be a whole number of at least 2")]
+        bases = {"primitives.basis": self.primitives.basis}
+        for name, jc in self.joints.items():
+            if jc.primitive is not None and jc.primitive.basis is not None:
+                bases[f"joints.{name}.primitive.basis"] = jc.primitive.basis
+        return [(where, f"{basis} basis functions but only {round(steps)} samples per cycle "
+                        "(period_s * sim.rate_hz); use at most that many")
+                for where, basis in bases.items() if basis > round(steps)]
 
     @property
     def seed_list(self) -> list[int]:
@@ -328,10 +336,17 @@ def read_yaml(path: Path) -> dict[str, Any]:
         text = Path(path).read_text()
     except FileNotFoundError:
         raise ConfigError([("", "config file not found")], str(path)) from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError:
+        raise ConfigError([("", "the file is binary (not UTF-8 text), not a YAML config")],
+                          str(path)) from None
+    except OSError as exc:
         raise ConfigError([("", f"cannot read config: {exc}")], str(path)) from None
+    if "\x00" in text:
+        raise ConfigError([("", "the file is binary (not UTF-8 text), not a YAML config")],
+                          str(path))
     try:
-        data = yaml.safe_load(text)
+        data = yaml.safe_load(text)  # safe: no object construction
+        duplicates = _duplicate_keys(yaml.compose(text, Loader=yaml.SafeLoader))
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -339,7 +354,29 @@ def read_yaml(path: Path) -> dict[str, Any]:
         raise ConfigError([("", f"{where}not valid YAML ({problem})")], str(path)) from None
     if not isinstance(data, dict):
         raise ConfigError([("", "the config must be a YAML mapping of fields")], str(path))
+    if duplicates:
+        raise ConfigError(duplicates, str(path))
     return data
+
+
+def _duplicate_keys(node, path: str = "") -> list[tuple[str, str]]:
+    """Keys given twice in a mapping (plain PyYAML keeps the last one silently, so two roles
+    for one joint would go unnoticed), with their YAML paths."""
+    problems = []
+    if isinstance(node, yaml.MappingNode):
+        seen = set()
+        for key_node, value_node in node.value:
+            key = key_node.value
+            where = f"{path}.{key}" if path else str(key)
+            if key in seen:
+                problems.append((where, f"given twice (line {key_node.start_mark.line + 1}); "
+                                        "each key may appear once"))
+            seen.add(key)
+            problems += _duplicate_keys(value_node, where)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            problems += _duplicate_keys(item, f"{path}.{i}")
+    return problems
 
 
 def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
@@ -398,9 +435,13 @@ def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
 def parse_config(data: dict[str, Any], source: str | None = None) -> ExperimentConfig:
     """Validate a raw mapping; raises :class:`ConfigError` listing every problem."""
     try:
-        return ExperimentConfig.model_validate(data)
+        cfg = ExperimentConfig.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(_pydantic_problems(exc), source) from None
+    problems = cfg.problems()
+    if problems:
+        raise ConfigError(problems, source)
+    return cfg
 
 
 def config_to_yaml(cfg: ExperimentConfig) -> str:

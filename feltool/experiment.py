@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from feltool.config import (ExperimentConfig, apply_overrides, parse_config, read_yaml)
+from feltool.checkpoint import Checkpointer, Interrupted, stop_requested
+from feltool.config import ExperimentConfig, apply_overrides, parse_config, read_yaml
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
@@ -73,6 +74,14 @@ class Experiment:
     @property
     def error_joints(self) -> list[str]:
         return [n for n, m in zip(self.joints, self.learner.error_mask) if m > 0]
+
+    def compiled_cycle(self):
+        """The compiled learning cycle (built and compiled on first use, cached on disk)."""
+        if getattr(self, "_compiled", None) is None:
+            from feltool.compiled import CompiledCycle
+
+            self._compiled = CompiledCycle(self)
+        return self._compiled
 
     def initial_parameters(self, seed: int) -> np.ndarray:
         """RMP parameters at the start of learning; random draws come from ``seed`` only."""
@@ -204,7 +213,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     locked.update({n: jc.posture for n, jc in cfg.joints.items() if jc.role == "locked"})
     robot = reduce_robot(full_robot, locked)
     robot.set_gravity(cfg.gravity)
-    dynamics = make_dynamics(robot.model, cfg.backend)
+    dynamics = make_dynamics(robot.model, "casadi" if cfg.backend == "casadi" else "pinocchio")
     nv = robot.model.nv
     joints = [""] * nv
     for name in robot.joint_names:
@@ -300,11 +309,40 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         plant_rb = reduce_robot(plant_robot(cfg.plant, full_robot,
                                             source.parent if source else None), locked)
         plant_rb.set_gravity(cfg.gravity)
-        plant = make_plant(cfg.plant, plant_rb, joints, make_dynamics(plant_rb.model, cfg.backend))
+        plant = make_plant(cfg.plant, plant_rb, joints, make_dynamics(
+            plant_rb.model, "casadi" if cfg.backend == "casadi" else "pinocchio"))
     model_learner = _model_learner(cfg, robot, joints, actuated, source)
     loop = ClosedLoop(plant, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator)
-    return Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
-                      init, source, plant, model_learner)
+    exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
+                     init, source, plant, model_learner)
+    if L.sensitivity == "casadi" and learner.n_learned:
+        from feltool.compiled import feedforward_jacobian
+
+        learner.set_casadi_jacobian(_BufferedFn(feedforward_jacobian(exp)))
+    if cfg.backend == "compiled":
+        from feltool.compiled import check_supported
+
+        # The compiled cycle simulates the known model and has no model correction.
+        problems = [(f, f"backend 'compiled' does not support '{f}' yet; use backend "
+                        f"pinocchio or casadi") for f, val in (("plant", cfg.plant),
+                                                              ("learning.model", L.model))
+                    if val is not None]
+        if problems:
+            raise ConfigError(problems, str(source) if source else None)
+        check_supported(exp)
+    return exp
+
+
+class _BufferedFn:
+    """A one-input CasADi function called with low overhead (see feltool.compiled)."""
+
+    def __init__(self, fn):
+        from feltool.compiled import _Buffered
+
+        self._call = _Buffered(fn)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self._call(x)[0]
 
 
 def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actuated: np.ndarray,
@@ -377,65 +415,100 @@ class SeedResult:
     traces: dict[str, np.ndarray]
 
 
+@dataclass
+class CycleOutcome:
+    """What the learner and the metrics need from one cycle, whichever backend ran it.
+
+    Attributes:
+        theta_next: Parameters after the cycle's update.
+        q_end, v_end: Robot state after the cycle.
+        fb_abs_mean: Mean |u_fb| per joint over the cycle [N m].
+        track_err_rms: RMS of forward minus system angle per joint [rad].
+        max_error: Largest |reference - controlled quantity| over the cycle [rad].
+        max_speed: Largest |joint velocity| over the cycle [rad/s].
+        finite: Whether every state stayed finite.
+        trace: Returns ``(CycleLog, Qd)`` of the cycle (computed on demand).
+        theta_m_next: The inverse-model correction after the cycle (``learning.model``), else
+            None.
+    """
+
+    theta_next: np.ndarray
+    q_end: np.ndarray
+    v_end: np.ndarray
+    fb_abs_mean: np.ndarray
+    track_err_rms: np.ndarray
+    max_error: float
+    max_speed: float
+    finite: bool
+    trace: Callable[[], tuple[CycleLog, np.ndarray]]
+    theta_m_next: np.ndarray | None = None
+
+
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
-             progress: Callable[[int, float], None] | None = None) -> SeedResult:
-    """Run one seed's learning and return its metrics (see the run directory's metrics.csv)."""
+             progress: Callable[[int, float], None] | None = None,
+             checkpoint: Checkpointer | None = None) -> SeedResult:
+    """Run one seed's learning and return its metrics (see the run directory's metrics.csv).
+
+    With a ``checkpoint``, the seed continues from its last checkpoint (bit-identically), saves
+    one every ``checkpoint.every`` cycles, and on a stop request saves and raises
+    :class:`~feltool.checkpoint.Interrupted`.
+    """
     cfg = exp.config
     cycles = cycles or cfg.sim.cycles
     theta = exp.initial_parameters(seed)
     n = exp.primitives.n_steps
-    Qd, Vd, Ad = exp.primitives.desired(theta)
+    Qd, Vd, _ = exp.primitives.desired(theta)
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
-    diverged, reason = False, None
-    t0 = time.perf_counter()
-    steps = 0
-    rmp_states = _limit_cycle_states(exp, theta)
+    reason, start, wall_before = None, 1, 0.0
+    run_cycle = _cycle_runner(exp, theta)
     model = exp.model_learner
     theta_m = model.initial_parameters() if model else None
     model_history = [theta_m]
-    for cycle in range(1, cycles + 1):
-        if cfg.learning.step == "per_step":
-            log, Qd, Vd, theta_next = _per_step_cycle(exp, theta, q, v, rmp_states)
-        else:
-            Qd, Vd, Ad = exp.primitives.desired(theta)
-            R, Rd = exp.law.references(Qd, Vd)
-            derivs = None
-            if exp.learner.n_learned and cfg.learning.sensitivity == "exact":
-                u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
-            else:
-                u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
-            if model is None:
-                log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
-            else:
-                log, theta_m_next = model.run_cycle(exp.loop, q, v, R, Rd, u_ff, (Qd, Vd, Ad),
-                                                    theta_m)
-        steps += n
-        reason = _divergence(exp, log, Qd)
+    saved = checkpoint.load() if checkpoint is not None else None
+    if saved is not None:
+        start = saved["cycle"] + 1
+        theta, q, v = saved["theta"], saved["q"], saved["v"]
+        rows, wall_before = saved["rows"], saved["wall_s"]
+        history = list(saved["history"])
+        traces = {k[len("trace_"):]: v for k, v in saved.items() if k.startswith("trace_")}
+        if "rmp_x" in saved:
+            _restore_rmp_states(run_cycle, saved)
+        if model is not None:
+            theta_m, model_history = saved["model_theta"], list(saved["model_history"])
+    t0 = time.perf_counter()
+    for cycle in range(start, cycles + 1):
+        out = run_cycle(theta, q, v) if model is None else run_cycle(theta, q, v, theta_m)
+        reason = _divergence(exp, out)
         if reason:
-            diverged = True
             break
-        if cfg.learning.step == "per_cycle":
-            J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
-            theta_next = exp.learner.step(theta, J, log.u_fb)
-        row = _metrics(exp, seed, cycle, log, Qd, theta)
+        row = _metrics(exp, seed, cycle, out, theta)
         if model is not None:
             row["model_param_norm"] = float(np.linalg.norm(theta_m))
-            theta_m = theta_m_next
+            theta_m = out.theta_m_next
             model_history.append(theta_m)
         rows.append(row)
         if cycle == 1:
-            traces.update(_trace("first", log, Qd))
-        last = (log, Qd)
-        theta = theta_next
+            traces.update(_trace("first", *out.trace()))
+        last = out
+        theta = out.theta_next
         history.append(theta[exp.learner.learned].copy())
-        q, v = log.q_end, log.v_end
+        q, v = out.q_end, out.v_end
         if progress is not None:
             progress(cycle, row["fb_abs_mean_error"])
-    wall = time.perf_counter() - t0
-    if rows:
-        traces.update(_trace("last", *last))
-    summary = _seed_summary(exp, seed, rows, diverged, reason, wall, steps)
+        if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
+            _save_checkpoint(checkpoint, cycle, theta, q, v, rows, history, traces,
+                             wall_before + time.perf_counter() - t0, run_cycle,
+                             (theta_m, model_history) if model is not None else None)
+            if stop_requested() and cycle < cycles:
+                raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
+    wall = wall_before + time.perf_counter() - t0
+    if last is not None:
+        traces.update(_trace("last", *last.trace()))
+    steps = n * (len(rows) + (1 if reason else 0))
+    if checkpoint is not None:
+        checkpoint.clear()
+    summary = _seed_summary(exp, seed, rows, reason, wall, steps)
     params = exp.split_parameters(theta)
     hist = np.array(history)
     for name in exp.learned_joints:
@@ -447,6 +520,119 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         params["model.theta"] = theta_m
         params["model.theta_history"] = np.array(model_history)
     return SeedResult(seed, rows, summary, params, traces)
+
+
+def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOutcome]:
+    """The function that runs one cycle for this experiment's backend and update mode.
+
+    A per-step runner carries the RMP states from cycle to cycle in its ``rmp_states``.
+    """
+    if exp.config.backend == "compiled":
+        return _compiled_runner(exp)
+    if exp.model_learner is not None:
+        return lambda theta, q, v, theta_m: _model_cycle(exp, theta, q, v, theta_m)
+    if exp.config.learning.step == "per_step":
+        states = _limit_cycle_states(exp, theta0)
+
+        def per_step(theta, q, v):
+            return _outcome(exp, *_per_step_cycle(exp, theta, q, v, states))
+
+        per_step.rmp_states = states
+        return per_step
+    return lambda theta, q, v: _per_cycle(exp, theta, q, v)
+
+
+def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history, traces,
+                     wall, run_cycle, model_state=None) -> None:
+    arrays = {"theta": theta, "q": q, "v": v, "history": np.array(history)}
+    if model_state is not None:
+        arrays["model_theta"], arrays["model_history"] = model_state[0], np.array(model_state[1])
+    arrays.update({f"trace_{k}": val for k, val in traces.items()})
+    states = getattr(run_cycle, "rmp_states", None)
+    if states is not None:
+        keys = sorted(states)
+        arrays["rmp_keys"] = np.array(keys)
+        arrays["rmp_x"] = np.array([states[k][0] for k in keys])
+        arrays["rmp_S"] = np.array([states[k][1] for k in keys])
+    checkpoint.save(cycle, arrays, {"rows": rows, "wall_s": wall})
+
+
+def _restore_rmp_states(run_cycle, saved: dict) -> None:
+    for key, x, S in zip(saved["rmp_keys"], saved["rmp_x"], saved["rmp_S"]):
+        run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
+
+
+def _per_cycle(exp: Experiment, theta: np.ndarray, q, v) -> CycleOutcome:
+    """One cycle on the limit cycle of the current parameters, then one update (eq. 3.6)."""
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    derivs = None
+    if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
+        u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+    else:
+        u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
+    log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+    theta_next = theta
+    if exp.learner.n_learned and np.all(np.isfinite(log.v)):
+        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_fb)
+    return _outcome(exp, log, Qd, theta_next)
+
+
+def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray) -> CycleOutcome:
+    """One cycle with the learned inverse-model correction in the feedforward, then both
+    updates: the trajectory's (eq. 3.6) and the model's (eq. 3.4)."""
+    model = exp.model_learner
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    derivs = None
+    if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
+        u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+    else:
+        u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
+    log, theta_m_next = model.run_cycle(exp.loop, q, v, R, Rd, u_ff, (Qd, Vd, Ad), theta_m)
+    theta_next = theta
+    if exp.learner.n_learned and np.all(np.isfinite(log.v)):
+        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_fb)
+    out = _outcome(exp, log, Qd, theta_next)
+    out.theta_m_next = theta_m_next
+    return out
+
+
+def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
+    R, _ = exp.law.references(Qd, Qd)
+    controlled = exp.law.tracking | exp.law.stabilizing
+    err = np.abs(R - exp.law.quantity(log.q))[:, controlled]
+    with np.errstate(all="ignore"):
+        return CycleOutcome(
+            theta_next, log.q_end, log.v_end, np.abs(log.u_fb).mean(axis=0),
+            np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)),
+            float(err.max()) if err.size else 0.0, float(np.abs(log.v).max()),
+            bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
+                 and np.all(np.isfinite(log.q_end))),
+            lambda: (log, Qd))
+
+
+def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
+    compiled = exp.compiled_cycle()
+    nv = exp.robot.model.nv
+
+    def run(theta, q, v) -> CycleOutcome:
+        x0 = np.concatenate([q, v])
+        x_end, fb, rms, grad, hess, max_err, max_speed = compiled.lean(theta, x0)
+        finite = bool(np.all(np.isfinite(x_end)) and np.isfinite(max_speed[0]))
+        theta_next = exp.learner.apply(theta, grad, hess) if finite else theta
+
+        def trace():
+            out = compiled.full(theta, x0)
+            X, U, Qd = out[7].T, out[8].T, out[9].T
+            return CycleLog(X[:, :nv], X[:, nv:], U, x_end[:nv], x_end[nv:]), Qd
+
+        return CycleOutcome(theta_next, x_end[:nv], x_end[nv:], fb, rms, float(max_err[0]),
+                            float(max_speed[0]), finite, trace)
+
+    return run
 
 
 def _limit_cycle_states(exp: Experiment, theta: np.ndarray) -> dict[int, tuple]:
@@ -489,35 +675,31 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             th = theta[prims.slices[i]]
             states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
         theta = learner.step(theta, J, u_fb[None])
-    return CycleLog(Q, V, U, q, v), Qd, Vd, theta
+    return CycleLog(Q, V, U, q, v), Qd, theta
 
 
-def _divergence(exp: Experiment, log, Qd: np.ndarray) -> str | None:
+def _divergence(exp: Experiment, out: CycleOutcome) -> str | None:
     sim = exp.config.sim
-    if not (np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
-            and np.all(np.isfinite(log.q_end))):
+    if not out.finite:
         return "the state became non-finite"
-    vmax = float(np.abs(log.v).max())
-    if vmax > sim.max_velocity:
-        return f"a joint velocity reached {vmax:.3g} rad/s (sim.max_velocity = {sim.max_velocity})"
-    R, _ = exp.law.references(Qd, Qd)
-    err = np.abs(R - exp.law.quantity(log.q))[:, exp.law.tracking | exp.law.stabilizing]
-    if err.size and err.max() > sim.max_error_rad:
-        return (f"a controlled quantity was {err.max():.3g} rad from its reference "
+    if out.max_speed > sim.max_velocity:
+        return (f"a joint velocity reached {out.max_speed:.3g} rad/s "
+                f"(sim.max_velocity = {sim.max_velocity})")
+    if out.max_error > sim.max_error_rad:
+        return (f"a controlled quantity was {out.max_error:.3g} rad from its reference "
                 f"(sim.max_error_rad = {sim.max_error_rad}): the robot fell")
     return None
 
 
-def _metrics(exp: Experiment, seed: int, cycle: int, log, Qd: np.ndarray,
+def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
              theta: np.ndarray) -> dict[str, float]:
-    fb = np.abs(log.u_fb).mean(axis=0)
+    fb, rms = out.fb_abs_mean, out.track_err_rms
     row: dict[str, float] = {"seed": seed, "cycle": cycle}
     for i, name in enumerate(exp.joints):
         row[f"fb_abs_mean_{name}"] = float(fb[i])
     row["fb_abs_mean_stabilized"] = float(fb[exp.law.stabilizing].sum())
     row["fb_abs_mean_total"] = float(fb.sum())
     row["fb_abs_mean_error"] = float((fb * exp.learner.error_mask).sum())
-    rms = np.sqrt(np.mean((Qd - log.q) ** 2, axis=0))
     for i, name in enumerate(exp.joints):
         row[f"track_err_rms_{name}"] = float(rms[i])
     row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
@@ -528,7 +710,7 @@ def _trace(which: str, log: CycleLog, Qd: np.ndarray) -> dict[str, np.ndarray]:
     return {f"{which}_q_system": log.q, f"{which}_q_forward": Qd, f"{which}_u_fb": log.u_fb}
 
 
-def _seed_summary(exp: Experiment, seed: int, rows, diverged: bool, reason: str | None,
+def _seed_summary(exp: Experiment, seed: int, rows, reason: str | None,
                   wall: float, steps: int) -> dict[str, Any]:
     fb = [r["fb_abs_mean_error"] for r in rows]
     fb0 = fb[0] if fb else None
@@ -542,7 +724,7 @@ def _seed_summary(exp: Experiment, seed: int, rows, diverged: bool, reason: str 
     out = {"seed": seed, "cycles": len(rows), "fb_initial": fb0, "fb_final": fb[-1] if fb else None,
            "fb_ratio": (fb[-1] / fb0) if fb and fb0 else None, "converged_cycle": converged,
            "wall_s": round(wall, 4), "steps_per_s": round(steps / wall, 1) if wall > 0 else None,
-           "diverged": diverged}
+           "diverged": reason is not None}
     if reason:
         out["diverged_reason"] = f"seed {seed}, cycle {len(rows) + 1}: {reason}"
     return out

@@ -57,7 +57,12 @@ class FeedbackErrorLearner:
     sensitivity: str = "exact"
     fd_epsilon: float = 1e-6
 
+    def set_casadi_jacobian(self, fn) -> None:
+        """Install the CasADi function ``theta -> J`` used by ``sensitivity: casadi``."""
+        self._casadi = fn
+
     def __post_init__(self):
+        self._casadi = None
         # Learned blocks: (velocity index, columns into the learned vector, primitive, row slice).
         self._blocks = []
         pos = {int(p): c for c, p in enumerate(self.learned)}
@@ -84,6 +89,10 @@ class FeedbackErrorLearner:
             return J
         if self.sensitivity == "finite_difference":
             return self._jacobian_fd(dynamics, theta)
+        if self.sensitivity == "casadi":
+            if self._casadi is None:
+                raise RuntimeError("sensitivity 'casadi' needs set_casadi_jacobian() first")
+            return np.asarray(self._casadi(theta)).reshape(n, nv, self.n_learned)
         if derivatives is None:
             derivatives = dynamics.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
         Dq, Dv, M = derivatives
@@ -119,19 +128,26 @@ class FeedbackErrorLearner:
 
     def step(self, theta: np.ndarray, J: np.ndarray, U_fb: np.ndarray) -> np.ndarray:
         """Parameters after one update from a cycle's (or a step's) Jacobian and feedback."""
+        if self.n_learned == 0:
+            return theta.copy()
+        hess = None
+        if self.update == "gauss_newton":
+            JE = J * self.error_mask[None, :, None]
+            hess = np.einsum("krp,krs->ps", JE, J)
+        return self.apply(theta, self.gradient(J, U_fb), hess)
+
+    def apply(self, theta: np.ndarray, grad: np.ndarray, hess: np.ndarray | None) -> np.ndarray:
+        """The update from :math:`g = \\sum_k J_k^\\top e_k` and (for gauss_newton)
+        :math:`H = \\sum_k J_k^\\top E J_k`, E selecting the error joints."""
         theta = theta.copy()
         if self.n_learned == 0:
             return theta
-        grad = self.gradient(J, U_fb)
         delta = self.rates * grad
         if self.update == "gauss_newton":
             w = ~self.is_goal
-            rows = self.error_mask > 0
-            Jw = J[:, rows][:, :, w].reshape(-1, int(w.sum()))
-            e = self.error(U_fb)[:, rows].reshape(-1)
-            H = Jw.T @ Jw
+            H = hess[np.ix_(w, w)]
             lam = self.damping * float(np.mean(np.diag(H))) + 1e-300
-            delta[w] = self.rates[w] * np.linalg.solve(H + lam * np.eye(H.shape[0]), Jw.T @ e)
+            delta[w] = self.rates[w] * np.linalg.solve(H + lam * np.eye(H.shape[0]), grad[w])
         theta[self.learned] += delta
         return theta
 

@@ -30,11 +30,25 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
 from feltool.errors import InputError
 
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(12)
+
+
+def expm(A: np.ndarray) -> np.ndarray:
+    """Matrix exponential by scaling and squaring of a Taylor series (small matrices; accurate
+    to rounding for the RMP's 2 x 2 systems, and cheaper to import than scipy.linalg)."""
+    norm = float(np.abs(A).sum(axis=1).max())
+    squarings = max(0, int(np.ceil(np.log2(norm / 0.25))) if norm > 0.25 else 0)
+    X = A / 2.0**squarings
+    result, term = np.eye(len(A)), np.eye(len(A))
+    for k in range(1, 20):
+        term = term @ X / k
+        result = result + term
+    for _ in range(squarings):
+        result = result @ result
+    return result
 
 
 @dataclass(frozen=True)
@@ -147,7 +161,8 @@ class RhythmicPrimitive:
         return self.Phi @ x + self.Gamma[k % self.n_steps] @ theta
 
     def step_sensitivity(self, S: np.ndarray, k: int) -> np.ndarray:
-        """Sensitivity :math:`\\partial x_{k+1}/\\partial\\theta` from :math:`\\partial x_k/\\partial\\theta`."""
+        """Sensitivity :math:`\\partial x_{k+1}/\\partial\\theta` from
+        :math:`\\partial x_k/\\partial\\theta` (the linear sensitivity recursion)."""
         return self.Phi @ S + self.Gamma[k % self.n_steps]
 
     def acceleration(self, x: np.ndarray, theta: np.ndarray, k: int) -> float:

@@ -148,10 +148,14 @@ def load_urdf(path: Path, source: str | None = None, name: str | None = None,
         raise RobotError(f"URDF file not found: {path}")
     try:
         text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError:
+        raise RobotError(f"{path}: the file is binary (not UTF-8 text), not a URDF") from None
+    except OSError as exc:
         raise RobotError(f"{path}: cannot read URDF ({exc})") from None
-    _check_urdf_xml(text, str(path))
+    if not text.strip():
+        raise RobotError(f"{path}: the URDF file is empty")
     dirs = [str(path.parent)] + list(package_dirs or [])
+    _check_urdf_xml(text, str(path), path.parent, dirs)
     try:
         model = pin.buildModelFromXML(text)
     except Exception as exc:  # Pinocchio raises ValueError/RuntimeError with its own text
@@ -160,13 +164,15 @@ def load_urdf(path: Path, source: str | None = None, name: str | None = None,
                  urdf_path=path, package_dirs=dirs)
 
 
-def _check_urdf_xml(text: str, where: str) -> None:
-    """Structural checks Pinocchio reports badly or not at all."""
+def _check_urdf_xml(text: str, where: str, base: Path | None = None,
+                    package_dirs: list[str] | None = None) -> None:
+    """Structural checks Pinocchio reports badly or not at all: well-formed XML, a tree of
+    links (no dangling references, no second parent, no cycle), masses, existing mesh files."""
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
         line, col = exc.position
-        raise RobotError(f"{where}:{line}:{col}: URDF is not well-formed XML ({exc.msg if hasattr(exc, 'msg') else exc})") from None
+        raise RobotError(f"{where}:{line}:{col}: URDF is not well-formed XML ({exc})") from None
     if root.tag != "robot":
         raise RobotError(f"{where}: root element is <{root.tag}>, a URDF needs <robot>")
     links = {link.get("name"): link for link in root.findall("link")}
@@ -183,6 +189,27 @@ def _check_urdf_xml(text: str, where: str) -> None:
                                  f"'{ref}', which is not a <link> of the URDF")
         children.setdefault(joint.find("parent").get("link"), []).append(
             (joint.find("child").get("link"), joint.get("type", "")))
+
+    parent_of: dict[str, str] = {}
+    for joint in root.findall("joint"):
+        child = joint.find("child").get("link")
+        if child in parent_of:
+            raise RobotError(f"{where}: <link name=\"{child}\"> is the child of two joints "
+                             f"('{parent_of[child]}' and '{joint.get('name')}'); a URDF must be "
+                             "a tree")
+        parent_of[child] = joint.get("name")
+    parent_link = {j.find("child").get("link"): j.find("parent").get("link")
+                   for j in root.findall("joint")}
+    for start in parent_link:
+        seen, link = {start}, start
+        while link in parent_link:
+            link = parent_link[link]
+            if link in seen:
+                raise RobotError(f"{where}: the joints form a cycle through <link name=\"{link}\">;"
+                                 " a URDF must be a tree")
+            seen.add(link)
+    if base is not None:
+        _check_meshes(root, where, base, package_dirs or [])
 
     def link_mass(name: str) -> float:
         inertial = links[name].find("inertial")
@@ -207,6 +234,36 @@ def _check_urdf_xml(text: str, where: str) -> None:
                 "has no <inertial> mass, and nothing it carries has any: its joint would have "
                 "no inertia and forward dynamics would be singular"
             )
+
+
+def resolve_mesh(filename: str, base: Path, package_dirs: list[str]) -> Path | None:
+    """The file a URDF mesh reference points to (``package://``, ``file://``, relative to the
+    URDF, or absolute), or None when it does not exist."""
+    candidates: list[Path] = []
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):]
+        package, _, inner = rest.partition("/")
+        for d in package_dirs:
+            candidates += [Path(d) / rest, Path(d) / inner, Path(d).parent / rest]
+    elif filename.startswith("file://"):
+        candidates.append(Path(filename[len("file://"):]))
+    else:
+        candidates.append(base / filename)
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def _check_meshes(root, where: str, base: Path, package_dirs: list[str]) -> None:
+    for link in root.findall("link"):
+        for kind in ("visual", "collision"):
+            for element in link.findall(kind):
+                mesh = element.find("geometry/mesh")
+                if mesh is None:
+                    continue
+                filename = mesh.get("filename", "")
+                if resolve_mesh(filename, base, package_dirs) is None:
+                    raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
+                                     f"'{filename}' not found (looked relative to {base} and in "
+                                     f"package dirs {package_dirs})")
 
 
 def _subtree_has_mass(name, children, link_mass) -> bool:

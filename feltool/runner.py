@@ -1,39 +1,34 @@
-"""Run an experiment over many seeds in parallel and write the run directory."""
+"""Run an experiment over many seeds in parallel and write the run directory.
+
+Finished seeds are saved as they arrive (``seeds/seed-N.json`` with their metric rows and
+summary, ``params/`` and ``traces/``), running seeds checkpoint every few cycles, and the run's
+own inputs are kept in ``run.json``; so ``feltool run --resume RUN_DIR`` continues an interrupted
+run, skipping finished seeds, and gives the same files as an uninterrupted run.
+"""
 
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import multiprocessing as mp
 import os
 import queue
+import signal
 import threading
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from feltool import __version__
+from feltool.checkpoint import Interrupted, request_stop, reset_stop, stop_requested
 from feltool.config import config_to_yaml
-from feltool.experiment import (Experiment, SeedResult, build_experiment, run_seed,
-                                stabilization_errors)
-from feltool.rundir import save_npz, write_json, write_metrics
+from feltool.errors import InputError
+from feltool.executors import Task, inline, make_executor
+from feltool.experiment import Experiment, SeedResult, build_experiment, stabilization_errors
+from feltool.rundir import atomic_write, load_npz, save_npz, write_json, write_metrics
 
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(raw: dict, source: str | None, messages) -> None:
-    _WORKER["exp"] = build_experiment(raw, Path(source) if source else None)
-    _WORKER["queue"] = messages
-
-
-def _run_in_worker(seed: int, cycles: int) -> SeedResult:
-    messages = _WORKER["queue"]
-
-    def progress(cycle: int, fb: float) -> None:
-        messages.put((seed, cycle, fb))
-
-    return run_seed(_WORKER["exp"], seed, cycles, progress)
+CHECKPOINT_EVERY = 10  # cycles
 
 
 def default_out_dir(name: str, root: Path = Path("runs")) -> Path:
@@ -43,47 +38,39 @@ def default_out_dir(name: str, root: Path = Path("runs")) -> Path:
 
 def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] | None = None,
                    cycles: int | None = None, workers: int | None = None,
-                   show_progress: bool = True, figures: bool = True) -> dict[str, Any]:
-    """Run every seed (in parallel on all cores), write the run directory, return the summary.
+                   show_progress: bool = True, figures: bool = True,
+                   scheduler: str | None = None) -> dict[str, Any]:
+    """Run every seed (in parallel on all cores, or on a Dask cluster), write the run
+    directory, return the summary.
 
     Args:
         exp: The built experiment (used in-process when one worker suffices).
         raw: The raw config mapping it was built from (workers rebuild the experiment from it).
-        out_dir: Run directory to create.
+        out_dir: Run directory to create (or to continue, when it holds a ``run.json``).
         seeds: Seeds to run; default the config's.
         cycles: Learning cycles per seed; default the config's.
-        workers: Processes; default all cores (at most one per seed).
+        workers: Local processes; default all cores (at most one per seed).
+        scheduler: A Dask scheduler address (``tcp://HOST:8786``) to run the seeds there.
     """
     cfg = exp.config
+    out_dir = Path(out_dir)
     seeds = list(seeds if seeds is not None else cfg.seed_list)
     cycles = cycles or cfg.sim.cycles
-    workers = max(1, min(workers or os.cpu_count() or 1, len(seeds)))
-    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.yaml").write_text(config_to_yaml(cfg))
-
-    bar = _progress_bar(len(seeds) * cycles, cfg.name, show_progress)
-    last_fb: dict[int, float] = {}
-
-    def on_progress(seed: int, cycle: int, fb: float) -> None:
-        last_fb[seed] = fb
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(fb=f"{np.mean(list(last_fb.values())):.3g} N m", refresh=False)
-
-    results: list[SeedResult] = []
-    try:
-        if workers == 1:
-            for seed in seeds:
-                results.append(run_seed(exp, seed, cycles,
-                                        lambda c, fb, s=seed: on_progress(s, c, fb)))
-        else:
-            results = _run_pool(exp, raw, seeds, cycles, workers, on_progress)
-    finally:
-        if bar is not None:
-            bar.close()
-    results.sort(key=lambda r: r.seed)
-    summary = write_results(exp, out_dir, results)
+    if not (out_dir / "run.json").is_file():
+        atomic_write(out_dir / "config.yaml", config_to_yaml(cfg))
+        write_json(out_dir / "run.json", {"source": str(exp.source) if exp.source else None,
+                                          "raw": raw, "seeds": seeds, "cycles": cycles})
+    finished = {s: r for s in seeds if (r := load_seed_result(out_dir, s)) is not None}
+    tasks = [Task("run", raw, str(exp.source) if exp.source else None, s, cycles,
+                  str(out_dir / "checkpoints"), CHECKPOINT_EVERY)
+             for s in seeds if s not in finished]
+    results = dict(finished)
+    for task, result in execute(tasks, workers, scheduler, cfg.name,
+                                sum(cycles for _ in tasks), show_progress):
+        save_seed_result(exp, out_dir, result)
+        results[task.seed] = result
+    summary = write_results(exp, out_dir, [results[s] for s in seeds])
     if figures:
         from feltool.plots import draw_figures
 
@@ -91,33 +78,114 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
     return summary
 
 
-def _run_pool(exp, raw, seeds, cycles, workers, on_progress) -> list[SeedResult]:
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-    manager = ctx.Manager()
-    messages = manager.Queue()
-    stop = threading.Event()
+def resume_run(run_dir: Path, workers: int | None = None, show_progress: bool = True,
+               scheduler: str | None = None) -> dict[str, Any]:
+    """Continue an interrupted run where it stopped."""
+    run_dir = Path(run_dir)
+    meta_path = run_dir / "run.json"
+    if not meta_path.is_file():
+        raise InputError(f"{run_dir}: no run.json, so not a feltool run directory to resume")
+    meta = json.loads(meta_path.read_text())
+    source = Path(meta["source"]) if meta["source"] else None
+    exp = build_experiment(meta["raw"], source)
+    return run_experiment(exp, meta["raw"], run_dir, meta["seeds"], meta["cycles"], workers,
+                          show_progress, scheduler=scheduler)
 
-    def pump() -> None:
-        while not stop.is_set() or not messages.empty():
+
+def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name: str,
+            total_cycles: int, show_progress: bool):
+    """Run tasks inline, in a local pool or on Dask; yield ``(task, result)`` as they finish.
+
+    SIGINT/SIGTERM make running seeds checkpoint and stop; then :class:`Interrupted` is raised.
+    """
+    if not tasks:
+        return
+    workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
+    bar = _progress_bar(total_cycles, name, show_progress)
+    latest: dict[tuple, float] = {}
+
+    def on_progress(key, seed, cycle, fb) -> None:
+        latest[(key, seed)] = fb
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(fb=f"{np.mean(list(latest.values())):.3g} N m", refresh=False)
+
+    reset_stop()
+    executor, manager, pump = None, None, None
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def on_signal(*_):
+        request_stop()
+        if executor is not None:
+            executor.interrupt()
+
+    try:
+        for sig in previous:
+            signal.signal(sig, on_signal)
+        if workers == 1 and not (scheduler or os.environ.get("FELTOOL_SCHEDULER")):
+            stream = inline(tasks, on_progress)
+        else:
+            messages = None
+            if not (scheduler or os.environ.get("FELTOOL_SCHEDULER")):
+                ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+                manager = ctx.Manager()
+                messages = manager.Queue()
+                pump = _Pump(messages, on_progress)
+            executor = make_executor(scheduler, workers, messages)
+            stream = executor.run(tasks)
+        interrupted = None
+        for item in _guarded(stream):
+            if isinstance(item, Interrupted):
+                interrupted = item
+                continue
+            yield item
+        if interrupted is not None or stop_requested():
+            raise Interrupted("stopped on request; finished seeds and checkpoints are saved")
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if executor is not None:
+            executor.close()
+        if pump is not None:
+            pump.stop()
+        if manager is not None:
+            manager.shutdown()
+        if bar is not None:
+            bar.close()
+
+
+def _guarded(stream):
+    """Pass results through; turn a seed's Interrupted into a value so others still finish."""
+    while True:
+        try:
+            yield next(stream)
+        except StopIteration:
+            return
+        except Interrupted as exc:
+            yield exc
+
+
+class _Pump:
+    """Forwards progress messages from worker processes to a callback, on a thread."""
+
+    def __init__(self, messages, callback):
+        self.messages, self.callback = messages, callback
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set() or not self.messages.empty():
             try:
-                on_progress(*messages.get(timeout=0.1))
+                self.callback(*self.messages.get(timeout=0.1))
             except queue.Empty:
                 continue
-            except (EOFError, OSError):
+            except (EOFError, OSError, BrokenPipeError):
                 return
 
-    thread = threading.Thread(target=pump, daemon=True)
-    thread.start()
-    source = str(exp.source) if exp.source else None
-    try:
-        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                                 initargs=(raw, source, messages)) as pool:
-            futures = [pool.submit(_run_in_worker, s, cycles) for s in seeds]
-            return [f.result() for f in futures]
-    finally:
-        stop.set()
-        thread.join(timeout=5)
-        manager.shutdown()
+    def stop(self) -> None:
+        self._stop.set()
+        self.thread.join(timeout=5)
 
 
 def _progress_bar(total: int, name: str, enabled: bool):
@@ -128,21 +196,40 @@ def _progress_bar(total: int, name: str, enabled: bool):
     return tqdm(total=total, desc=name, unit="cycle", dynamic_ncols=True, leave=False)
 
 
+def save_seed_result(exp: Experiment, out_dir: Path, r: SeedResult) -> None:
+    """Write one finished seed's files (params, traces, then the record that marks it done)."""
+    save_npz(out_dir / "params" / f"seed-{r.seed}.npz", r.params)
+    if r.traces:
+        save_npz(out_dir / "traces" / f"seed-{r.seed}.npz",
+                 {**r.traces, "joint_names": np.array(exp.joints), "dt": np.array(exp.config.dt)})
+    entry = dict(r.summary)
+    if r.traces:
+        entry["stabilization_error_max_last_cycle_rad"] = stabilization_errors(exp, r.traces)
+    write_json(out_dir / "seeds" / f"seed-{r.seed}.json", {"rows": r.rows, "summary": entry})
+
+
+def load_seed_result(out_dir: Path, seed: int) -> SeedResult | None:
+    """A seed saved by :func:`save_seed_result`, or None if it has not finished."""
+    record = out_dir / "seeds" / f"seed-{seed}.json"
+    if not record.is_file():
+        return None
+    data = json.loads(record.read_text())
+    traces_path = out_dir / "traces" / f"seed-{seed}.npz"
+    traces = {k: v for k, v in load_npz(traces_path).items() if k not in ("joint_names", "dt")} \
+        if traces_path.is_file() else {}
+    return SeedResult(seed, data["rows"], data["summary"],
+                      load_npz(out_dir / "params" / f"seed-{seed}.npz"), traces)
+
+
 def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult]) -> dict[str, Any]:
-    """Write metrics.csv, summary.json, params/ and traces/ for finished seeds."""
-    rows = [row for r in results for row in r.rows]
-    write_metrics(out_dir / "metrics.csv", rows)
+    """Write metrics.csv and summary.json from finished seeds (in the given order)."""
+    write_metrics(out_dir / "metrics.csv", [row for r in results for row in r.rows])
     seeds = []
     for r in results:
         entry = dict(r.summary)
-        if r.traces:
+        if r.traces and "stabilization_error_max_last_cycle_rad" not in entry:
             entry["stabilization_error_max_last_cycle_rad"] = stabilization_errors(exp, r.traces)
         seeds.append(entry)
-        save_npz(out_dir / "params" / f"seed-{r.seed}.npz", r.params)
-        if r.traces:
-            save_npz(out_dir / "traces" / f"seed-{r.seed}.npz",
-                     {**r.traces, "joint_names": np.array(exp.joints),
-                      "dt": np.array(exp.config.dt)})
     summary = {"config": exp.config.name, "feltool_version": __version__,
                "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                "robot": exp.config.robot, "joints": exp.joints,

@@ -7,10 +7,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from feltool.checkpoint import Checkpointer, Interrupted, request_stop, reset_stop
 from feltool.errors import ConfigError
 from feltool.experiment import load_experiment, run_seed
-from feltool.model_fel import (PhaseBasisFeatures, RegressorFeatures, identifiability,
-                               inertial_parameters)
+from feltool.model_fel import PhaseBasisFeatures, RegressorFeatures, identifiability, inertial_parameters
 from feltool.robot import load_robot
 from feltool.rundir import write_metrics
 
@@ -35,8 +35,9 @@ def test_regressor_times_inertial_parameters_is_rnea(robot, rng):
 
 @pytest.mark.parametrize("name", ["two_link_standard", "two_link_human_arm"])
 def test_existing_configs_give_the_metrics_recorded_before_plant_and_model_learning(name, tmp_path):
-    """Golden metrics.csv (seeds 0-1, 6 cycles) written by the code before issue 8; and an
-    explicit `plant: {}` (a separate copy of the model) gives the same bytes."""
+    """Golden metrics.csv (seeds 0-1, 6 cycles) written by main's code without issue 8 (main at
+    5f4edad, regenerated at the merge: main's own expm changed low-order bits, <1e-11 relative);
+    and an explicit `plant: {}` (a separate copy of the model) gives the same bytes."""
     golden = (ROOT / "tests" / "data" / f"metrics_{name}.seeds0-1.cycles6.csv").read_text()
     for overrides in ([], ["plant={}"]):
         exp = load_experiment(CONFIGS / f"{name}.yaml", overrides)
@@ -139,3 +140,34 @@ def test_per_step_model_update_learns():
     res = run_seed(exp, 0, cycles=15)
     total = [r["fb_abs_mean_total"] for r in res.rows]
     assert total[-1] < 0.1 * total[0]
+
+
+def test_resume_with_model_learning_is_bit_identical(tmp_path):
+    """theta_m and its history are checkpointed: a stop after cycle 6 and a resume give the same
+    rows and parameters as an uninterrupted run."""
+    exp = load_experiment(MISMATCH)
+    whole = run_seed(exp, 3, cycles=10)
+
+    def stop_at_6(cycle, _):
+        if cycle == 6:
+            request_stop()
+
+    ckpt = Checkpointer(tmp_path, 3, every=4)
+    try:
+        with pytest.raises(Interrupted):
+            run_seed(exp, 3, cycles=10, progress=stop_at_6, checkpoint=ckpt)
+    finally:
+        reset_stop()
+    assert ckpt.load()["cycle"] == 6 and "model_theta" in ckpt.load()
+    resumed = run_seed(exp, 3, cycles=10, checkpoint=ckpt)
+    assert resumed.rows == whole.rows
+    assert resumed.params.keys() == whole.params.keys()
+    for key in whole.params:
+        np.testing.assert_array_equal(resumed.params[key], whole.params[key])
+
+
+def test_compiled_backend_rejects_plant_and_model_learning():
+    with pytest.raises(ConfigError) as err:
+        load_experiment(MISMATCH, ["backend=compiled"])
+    text = str(err.value)
+    assert "plant" in text and "learning.model" in text and "compiled" in text

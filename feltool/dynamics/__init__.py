@@ -53,7 +53,11 @@ def make_dynamics(model: pin.Model, backend: str = "pinocchio") -> Dynamics:
         from feltool.dynamics.pinocchio import PinocchioDynamics
 
         return PinocchioDynamics(model)
-    raise InputError(f"unknown dynamics backend '{backend}'; available: pinocchio")
+    if backend == "casadi":
+        from feltool.dynamics.casadi_backend import CasadiDynamics
+
+        return CasadiDynamics(model)
+    raise InputError(f"unknown dynamics backend '{backend}'; available: pinocchio, casadi")
 
 
 __all__ = ["Dynamics", "make_dynamics"]

@@ -507,3 +507,20 @@ __all__ = [
     "symbolic_rnea",
     "symbolic_rnea_derivatives",
 ]
+
+
+def _batch_methods():
+    """``inverse_batch`` and ``inverse_derivatives_batch`` by looping the per-sample calls."""
+
+    def inverse_batch(self, Q, V, A):
+        return np.array([self.inverse(q, v, a) for q, v, a in zip(Q, V, A, strict=True)])
+
+    def inverse_derivatives_batch(self, Q, V, A):
+        tau = self.inverse_batch(Q, V, A)
+        parts = [self.inverse_derivatives(q, v, a) for q, v, a in zip(Q, V, A, strict=True)]
+        return (tau, *(np.array([p[i] for p in parts]) for i in range(3)))
+
+    return inverse_batch, inverse_derivatives_batch
+
+
+CasadiDynamics.inverse_batch, CasadiDynamics.inverse_derivatives_batch = _batch_methods()

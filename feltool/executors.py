@@ -1,0 +1,156 @@
+"""Where seeds run: a local process pool (default) or a Dask distributed cluster.
+
+A task is everything a worker needs to run one seed of one configuration: the raw config
+mapping, where it came from, the seed, the number of cycles and where to checkpoint. Workers
+build (and cache) the experiment themselves, so a Dask worker needs nothing but
+``pip install feltool``; results (:class:`~feltool.experiment.SeedResult`) come back to the
+submitting process, which writes every file.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import signal
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from feltool.checkpoint import Checkpointer, install_stop_handlers
+from feltool.errors import InputError
+
+_CACHE: dict[str, Any] = {}
+_PROGRESS: dict[str, Any] = {}
+
+
+@dataclass(frozen=True)
+class Task:
+    """One seed of one configuration.
+
+    Attributes:
+        key: Identifies the configuration (a sweep point), echoed back with the result.
+        raw: The raw config mapping (overrides applied).
+        source: The config file it came from (for relative paths), or None.
+        seed: The seed.
+        cycles: Learning cycles.
+        checkpoint_dir: Where to keep this seed's checkpoint, or None.
+        checkpoint_every: Cycles between checkpoints.
+    """
+
+    key: str
+    raw: dict
+    source: str | None
+    seed: int
+    cycles: int
+    checkpoint_dir: str | None = None
+    checkpoint_every: int = 10
+
+
+def run_task(task: Task):
+    """Run one task in this process (a pool or Dask worker, or the main process)."""
+    from feltool.experiment import build_experiment, run_seed
+
+    ident = json.dumps(task.raw, sort_keys=True, default=str) + str(task.source)
+    exp = _CACHE.get(ident)
+    if exp is None:
+        exp = _CACHE[ident] = build_experiment(task.raw, Path(task.source) if task.source else None)
+    messages = _PROGRESS.get("queue")
+    progress = None
+    if messages is not None:
+        def progress(cycle: int, fb: float) -> None:
+            messages.put((task.key, task.seed, cycle, fb))
+    checkpoint = (Checkpointer(Path(task.checkpoint_dir), task.seed, task.checkpoint_every)
+                  if task.checkpoint_dir else None)
+    return run_seed(exp, task.seed, task.cycles, progress, checkpoint)
+
+
+def _init_local_worker(messages) -> None:
+    install_stop_handlers()
+    _PROGRESS["queue"] = messages
+
+
+class LocalExecutor:
+    """A process pool on this machine; per-cycle progress comes back through a queue."""
+
+    def __init__(self, workers: int, messages=None):
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        self.pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_local_worker,
+                                        initargs=(messages,))
+
+    def run(self, tasks: list[Task]) -> Iterator[tuple[Task, Any]]:
+        """Yield ``(task, result)`` as tasks finish; a task's exception is raised when reached."""
+        futures = {self.pool.submit(run_task, t): t for t in tasks}
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                yield futures[fut], fut.result()
+
+    def interrupt(self) -> None:
+        """Ask every worker to checkpoint and stop."""
+        for pid in list(getattr(self.pool, "_processes", {}) or {}):
+            try:
+                os.kill(pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+class DaskExecutor:
+    """Tasks on a Dask distributed cluster; lost workers' tasks are retried by the scheduler."""
+
+    def __init__(self, address: str):
+        try:
+            from distributed import Client
+        except ImportError:
+            raise InputError("--scheduler needs Dask: pip install 'feltool[dask]'") from None
+        try:
+            self.client = Client(address, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            raise InputError(f"--scheduler: cannot reach a Dask scheduler at {address} "
+                             f"({exc})") from None
+
+    def run(self, tasks: list[Task]) -> Iterator[tuple[Task, Any]]:
+        from distributed import as_completed
+
+        futures = {self.client.submit(run_task, t, pure=False, retries=3): t for t in tasks}
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
+
+    def interrupt(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self.client.close()
+
+
+def make_executor(scheduler: str | None, workers: int, messages=None):
+    """A Dask executor for ``tcp://HOST:PORT`` (or ``$FELTOOL_SCHEDULER``), else a local pool."""
+    scheduler = scheduler or os.environ.get("FELTOOL_SCHEDULER") or None
+    if scheduler:
+        return DaskExecutor(scheduler)
+    return LocalExecutor(workers, messages)
+
+
+def inline(tasks: list[Task], on_progress: Callable | None = None) -> Iterator[tuple[Task, Any]]:
+    """Run tasks one after the other in this process."""
+    for t in tasks:
+        if on_progress is not None:
+            _PROGRESS["queue"] = _Direct(on_progress)
+        try:
+            yield t, run_task(t)
+        finally:
+            _PROGRESS.pop("queue", None)
+
+
+class _Direct:
+    def __init__(self, fn):
+        self.fn = fn
+
+    def put(self, item) -> None:
+        self.fn(*item)

@@ -1,0 +1,91 @@
+"""CasADi backends: symbolic sensitivities and the compiled learning cycle give the Pinocchio
+backend's numbers."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from feltool.experiment import load_experiment, run_seed
+
+from .conftest import CONFIGS, feltool
+
+STANDARD = CONFIGS / "two_link_standard.yaml"
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("FELTOOL_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def _curves(result, key="fb_abs_mean_error"):
+    return np.array([r[key] for r in result.rows])
+
+
+def test_casadi_sensitivity_matches_exact_and_finite_differences():
+    exact = load_experiment(STANDARD)
+    cas = load_experiment(STANDARD, ["learning.sensitivity=casadi"])
+    fd = load_experiment(STANDARD, ["learning.sensitivity=finite_difference",
+                                    "learning.fd_epsilon=1e-5"])
+    theta = exact.initial_parameters(5)
+    Qd, Vd, Ad = exact.primitives.desired(theta)
+    J = exact.learner.jacobian(exact.dynamics, theta, Qd, Vd, Ad)
+    J_cas = cas.learner.jacobian(cas.dynamics, theta, Qd, Vd, Ad)
+    J_fd = fd.learner.jacobian(fd.dynamics, theta, Qd, Vd, Ad)
+    scale = np.abs(J).max()
+    np.testing.assert_allclose(J_cas, J, atol=1e-8 * scale)
+    np.testing.assert_allclose(J_cas, J_fd, atol=1e-5 * scale)
+
+
+@pytest.mark.parametrize("overrides", [[], ["learning.update=gauss_newton",
+                                            "learning.rates.weights=1.0"]])
+def test_compiled_cycle_gives_the_pinocchio_metrics(overrides):
+    ref = run_seed(load_experiment(STANDARD, overrides), 3, 40)
+    comp = run_seed(load_experiment(STANDARD, ["backend=compiled", *overrides]), 3, 40)
+    assert len(comp.rows) == len(ref.rows) == 40
+    for key in ref.rows[0]:
+        a = np.array([r[key] for r in ref.rows], dtype=float)
+        b = np.array([r[key] for r in comp.rows], dtype=float)
+        np.testing.assert_allclose(b, a, rtol=1e-8, atol=1e-12, err_msg=key)
+    np.testing.assert_allclose(comp.traces["last_q_system"], ref.traces["last_q_system"],
+                               atol=1e-10)
+    np.testing.assert_allclose(comp.params["elbow.weights"], ref.params["elbow.weights"],
+                               rtol=1e-8)
+
+
+def test_casadi_backend_gives_the_pinocchio_metrics():
+    ref = run_seed(load_experiment(STANDARD), 1, 5)
+    cas = run_seed(load_experiment(STANDARD, ["backend=casadi"]), 1, 5)
+    np.testing.assert_allclose(_curves(cas), _curves(ref), rtol=1e-10)
+
+
+def test_compiled_run_in_a_process_pool_equals_pinocchio_metrics_csv(tmp_path):
+    """Two workers load (and one compiles) the same cached library; metrics.csv agrees."""
+    a, b = tmp_path / "pin", tmp_path / "compiled"
+    for out, extra in ((a, []), (b, ["--set", "backend=compiled"])):
+        res = feltool("run", str(STANDARD), "--seeds", "0-1", "--cycles", "15", "--out",
+                      str(out), "--workers", "2", *extra)
+        assert res.returncode == 0, res.stderr
+    ra, rb = (list(csv.DictReader(open(d / "metrics.csv"))) for d in (a, b))
+    assert len(ra) == len(rb) == 30
+    for x, y in zip(ra, rb):
+        for key in x:
+            assert float(y[key]) == pytest.approx(float(x[key]), rel=1e-8, abs=1e-12), key
+
+
+def test_without_a_c_compiler_it_falls_back_and_says_so_once(tmp_path, monkeypatch):
+    monkeypatch.setenv("CC", "false")  # a "compiler" that always fails
+    monkeypatch.setenv("FELTOOL_CACHE", str(tmp_path / "empty-cache"))
+    res = feltool("run", str(STANDARD), "--seeds", "0", "--cycles", "3", "--out",
+                  str(tmp_path / "run"), "--set", "backend=compiled")
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.count("interpreted virtual machine") == 1
+
+
+def test_compiled_backend_rejects_what_it_cannot_do(tmp_path):
+    res = feltool("check", str(STANDARD), "--set", "backend=compiled",
+                  "--set", "learning.step=per_step")
+    assert res.returncode == 2
+    assert "learning.step: backend 'compiled' supports only per_cycle" in res.stderr
