@@ -167,6 +167,10 @@ class ModelLearningConfig(Strict):
     damping: PositiveFloat = Field(1.0e-6, description="Levenberg-Marquardt damping, relative "
                                    "to the mean diagonal of Phi^T Phi [-]; directions the motion "
                                    "does not excite are then left unchanged.")
+    jacobian: Literal["learned", "nominal"] = Field("learned", description="Inverse model whose "
+        "derivatives the trajectory learner's Jacobian uses when both learn: learned = the known "
+        "model plus the current correction (chain rule through Phi theta_m; regressor features "
+        "give RNEA with pi_model + theta_m), nominal = the known model alone.")
 
 
 class BodyOverride(Strict):

@@ -357,6 +357,11 @@ def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actua
                                            "learner's per_step loop has no model correction)"))
     if M.step == "per_step" and M.update != "gradient":
         problems.append(("learning.model.update", "per_step learning supports only 'gradient'"))
+    if (cfg.learning.sensitivity == "casadi" and M.jacobian == "learned"
+            and M.features == "regressor"):
+        problems.append(("learning.model.jacobian", "'learned' needs learning.sensitivity exact or "
+                                                    "finite_difference (the casadi Jacobian is "
+                                                    "built from the known model); or use nominal"))
     if problems:
         raise ConfigError(problems, str(source) if source else None)
     if M.features == "regressor":
@@ -593,7 +598,14 @@ def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray) 
     log, theta_m_next = model.run_cycle(exp.loop, q, v, R, Rd, u_ff, (Qd, Vd, Ad), theta_m)
     theta_next = theta
     if exp.learner.n_learned and np.all(np.isfinite(log.v)):
-        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
+        dyn = exp.dynamics
+        if exp.config.learning.model.jacobian == "learned":
+            learned = model.learned_dynamics(theta_m)  # the model this cycle's u_ff came from
+            if learned is not None:
+                dyn = learned
+                if derivs is not None:
+                    derivs = learned.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
+        J = exp.learner.jacobian(dyn, theta, Qd, Vd, Ad, derivs)
         theta_next = exp.learner.step(theta, J, log.u_fb)
     out = _outcome(exp, log, Qd, theta_next)
     out.theta_m_next = theta_m_next

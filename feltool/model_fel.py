@@ -26,7 +26,7 @@ Features :math:`\Phi`:
   RNEA being linear in the inertial parameters :math:`\pi` (10 per body:
   :math:`m, m c_x, m c_y, m c_z, I_{xx}, I_{xy}, I_{yy}, I_{xz}, I_{yz}, I_{zz}`, the rotational
   inertia taken about the joint frame's origin): :math:`\mathrm{RNEA}_\pi = Y\pi`. The learned
-  model is then RNEA with :math:`\pi_{model} + \theta_m`; only the combinations of :math:`\pi` in
+  model is then RNEA with :math:`\\pi_{model} + \theta_m`; only the combinations of :math:`\pi` in
   the row space of :math:`Y` stacked along the motion are identifiable (:func:`identifiability`).
 * :class:`PhaseBasisFeatures` -- normalised von Mises functions of the phase, per joint: a
   periodic torque profile :math:`\Delta u_j(\phi)`; no physics, any periodic mismatch.
@@ -71,6 +71,15 @@ class RegressorFeatures:
         self.n_params = self.pi_model.size
         self.names = [f"{model.names[j]}.{p}" for j in range(1, model.njoints)
                       for p in INERTIAL_NAMES]
+
+    def corrected_model(self, theta_m: np.ndarray) -> pin.Model:
+        """The known model with inertial parameters :math:`\\pi_{model} + \\theta_m`: its RNEA is
+        :math:`Y(\\pi_{model} + \\theta_m)`, the learned inverse model."""
+        model = self.model.copy()
+        pi = self.pi_model + theta_m
+        for j in range(1, model.njoints):
+            model.inertias[j] = pin.Inertia.FromDynamicParameters(pi[10 * (j - 1):10 * j])
+        return model
 
     def features(self, Qd, Vd, Ad):
         n = len(Qd)
@@ -140,6 +149,17 @@ class ModelLearner:
     def initial_parameters(self) -> np.ndarray:
         """:math:`\\theta_m = 0`: learning starts from the known model."""
         return np.zeros(self.n_params)
+
+    def learned_dynamics(self, theta_m: np.ndarray):
+        """The learned inverse model (known model plus correction) as a :class:`Dynamics`, for the
+        trajectory learner's Jacobian, or None when the correction does not depend on the
+        desired state (phase-basis features: the nominal model's derivatives are exact)."""
+        corrected = getattr(self.features, "corrected_model", None)
+        if corrected is None:
+            return None
+        from feltool.dynamics import make_dynamics
+
+        return make_dynamics(corrected(theta_m), "pinocchio")
 
     @staticmethod
     def correction(Phi: np.ndarray, theta_m: np.ndarray) -> np.ndarray:
