@@ -171,6 +171,98 @@ class JointConfig(Strict):
         return self
 
 
+class ModelLearningConfig(Strict):
+    """Classic (Kawato) feedback error learning of an inverse-model correction (eq. 2.8, 3.4):
+    u_ff = RNEA_model(q_d, qd_d, qdd_d) + Phi(q_d, qd_d, qdd_d) theta_m, with the whole actuated
+    feedback as the error signal."""
+
+    features: Literal["regressor", "phase_basis"] = Field("regressor", description="Features "
+        "Phi: regressor = Pinocchio's joint-torque regressor, so theta_m are corrections of the "
+        "10 inertial parameters per body [m, m c, I at the joint frame origin]; phase_basis = "
+        "normalised von Mises functions of the phase, one set per joint, theta_m in [N m].")
+    error: Literal["all_feedback", "tracking"] | list[str] = Field("all_feedback", description=""
+        "Error signal: all actuated feedback (Kawato's FEL), only the tracking joints' feedback "
+        "(leaves the stabilizing feedback to trajectory FEL when both run), or a list of joints.")
+    basis: int = Field(20, ge=1, le=1000, description="Number of phase basis functions per "
+                       "joint (phase_basis only).")
+    width: PositiveFloat | None = Field(None, description="Width h of the phase basis [-] "
+                                        "(phase_basis only); default basis / 2.")
+    update: Literal["gradient", "gauss_newton"] = Field("gradient", description="gradient: "
+        "eq. 3.4, theta_m += rate * sum_k Phi_k^T e_k; gauss_newton: the Levenberg-Marquardt "
+        "step rate * (Phi^T Phi + lambda I)^-1 Phi^T e over the cycle (per_cycle only; fast "
+        "alone, but it interferes with trajectory FEL).")
+    step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
+        "cycle or after every control step (per_step: gradient only).")
+    rate: NonNegFloat = Field(description="Learning rate alpha_m (required; its unit depends on "
+        "the features): gradient: per sample and cycle, in [theta_m unit / (N m)^2] -- stable "
+        "below 2 / (largest eigenvalue of sum_k Phi_k^T Phi_k); gauss_newton: the fraction of the "
+        "Levenberg-Marquardt step [-]. See docs/model_learning.md.")
+    damping: PositiveFloat = Field(1.0e-6, description="Levenberg-Marquardt damping, relative "
+                                   "to the mean diagonal of Phi^T Phi [-]; directions the motion "
+                                   "does not excite are then left unchanged.")
+    jacobian: Literal["learned", "nominal"] = Field("learned", description="Inverse model whose "
+        "derivatives the trajectory learner's Jacobian uses when both learn: learned = the known "
+        "model plus the current correction (chain rule through Phi theta_m; regressor features "
+        "give RNEA with pi_model + theta_m), nominal = the known model alone.")
+
+
+class BodyOverride(Strict):
+    """The plant's physical parameters of one body: the rigid body moved by a joint (with every
+    link welded to it). Unset fields keep the model's values."""
+
+    mass_scale: PositiveFloat | None = Field(None, description="Scale mass and rotational "
+        "inertia together (a uniformly denser body; the centre of mass stays) [-].")
+    mass: PositiveFloat | None = Field(None, description="Mass in [kg] (rotational inertia "
+                                       "unchanged unless `inertia` is given).")
+    com: list[FiniteFloat] | None = Field(None, min_length=3, max_length=3, description="Centre "
+                                          "of mass in the joint's frame, [x, y, z] in [m].")
+    inertia: list[FiniteFloat] | None = Field(None, min_length=6, max_length=6, description=""
+        "Rotational inertia about the centre of mass, [ixx, ixy, ixz, iyy, iyz, izz] in "
+        "[kg m^2] (URDF order).")
+
+    @model_validator(mode="after")
+    def _one_mass(self) -> BodyOverride:
+        if self.mass_scale is not None and self.mass is not None:
+            raise ValueError("give 'mass_scale' or 'mass', not both")
+        return self
+
+
+class Payload(Strict):
+    """A rigid payload fixed to a frame of the plant (e.g. a tool at the arm's tip)."""
+
+    frame: str = Field(min_length=1, description="URDF link (or Pinocchio frame) it is fixed to.")
+    mass: PositiveFloat = Field(description="Mass in [kg].")
+    com: list[FiniteFloat] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
+                                   description="Centre of mass in that frame, [x, y, z] in [m].")
+    inertia: list[FiniteFloat] = Field([0.0] * 6, min_length=6, max_length=6, description=""
+        "Rotational inertia about its centre of mass, [ixx, ixy, ixz, iyy, iyz, izz] in "
+        "[kg m^2]; default a point mass.")
+
+
+class JointFriction(Strict):
+    """Joint friction of the plant, tau_f = viscous * v + coulomb * tanh(v / coulomb_velocity),
+    opposing the motion (the known model has none)."""
+
+    viscous: NonNegFloat = Field(0.0, description="Viscous damping in [N m s/rad].")
+    coulomb: NonNegFloat = Field(0.0, description="Coulomb friction level in [N m].")
+    coulomb_velocity: PositiveFloat = Field(0.01, description="Velocity scale of the smooth "
+                                            "Coulomb term in [rad/s].")
+
+
+class PlantConfig(Strict):
+    """The simulated robot when it differs from the known model (which gives the feedforward):
+    a second URDF and/or overrides of the model's physics. Without `plant`, plant = model."""
+
+    robot: str | None = Field(None, description="A different robot for the plant (bundled name, "
+        "URDF path relative to the config, or example-robot-data:NAME) with the same joints; "
+        "default the model's robot.")
+    bodies: dict[str, BodyOverride] = Field(default_factory=dict, description="Overrides per "
+        "body, by the name of the joint that moves it.")
+    payloads: list[Payload] = Field(default_factory=list, description="Payloads fixed to frames.")
+    friction: dict[str, JointFriction] = Field(default_factory=dict, description="Friction per "
+                                               "joint, by joint name.")
+
+
 class Rates(Strict):
     """Learning rates alpha of eq. 3.6, separate for weights and goal."""
 
@@ -199,6 +291,8 @@ class LearningConfig(Strict):
         "differentiation through the RMP and a symbolic RNEA.")
     fd_epsilon: PositiveFloat = Field(1.0e-6, description="Finite-difference step, relative "
                                       "to max(1, |theta_i|) [-].")
+    model: ModelLearningConfig | None = Field(None, description="Also learn an inverse-model "
+        "correction by classic FEL (docs/model_learning.md); default off.")
 
 
 class Guard(Strict):
@@ -323,6 +417,8 @@ class ExperimentConfig(Strict):
         "(underactuated robots); default every non-passive joint is its own motor.")
     events: list[EventConfig] = Field(default_factory=list, description="Changes of the world "
                                       "at given cycles (adaptation experiments).")
+    plant: PlantConfig | None = Field(None, description="The simulated robot, when it differs "
+                                      "from the known model; default plant = model.")
     seeds: int | list[Annotated[int, Field(ge=0)]] = Field(20, description="Number of seeds "
                                                           "(0..n-1) or an explicit list.")
     sweep: SweepConfig | None = Field(None, description="Grid for feltool sweep.")

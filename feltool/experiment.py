@@ -24,6 +24,8 @@ from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.events import changed_model, check_events, plant_for_cycle
 from feltool.fel import FeedbackErrorLearner, feedforward
 from feltool.hybrid import Allocation, HybridLoop, Walker
+from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
+from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
 from feltool.simulate import ClosedLoop, CycleLog
@@ -45,6 +47,9 @@ class Experiment:
         learner: The FEL learner.
         init: Per learned joint: ``(slice, weight std, goal centre, goal spread, kind)``.
         hybrid: The step-by-step loop for walkers and allocated motors (else None).
+        plant: The simulated robot's dynamics (``loop.dynamics``); ``dynamics`` itself unless
+            the config has a ``plant:`` block.
+        model_learner: Classic FEL of an inverse-model correction (``learning.model``), or None.
     """
 
     config: ExperimentConfig
@@ -59,6 +64,8 @@ class Experiment:
     init: list[tuple[slice, float, float, float, str]] = field(default_factory=list)
     source: Path | None = None
     hybrid: HybridLoop | None = None
+    plant: Dynamics | None = None
+    model_learner: ModelLearner | None = None
 
     @property
     def learned_joints(self) -> list[str]:
@@ -142,6 +149,8 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
             problems.append(("robot", str(exc)))
     if robot is not None:
         problems += _name_problems(raw, robot)
+        if cfg is not None and cfg.plant is not None:
+            problems += plant_problems(cfg.plant, robot, source.parent if source else None)
     if problems:
         # The same path may be reported by the schema and by the name checks; keep both texts.
         raise ConfigError(_dedupe(problems), src)
@@ -316,9 +325,20 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                                    np.array(is_goal, dtype=bool), error_mask,
                                    np.array(rates), L.update, L.damping, L.sensitivity,
                                    L.fd_epsilon)
-    loop = ClosedLoop(dynamics, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator,
-                      error_mask)
+    plant = dynamics
     src = str(source) if source else None
+    if cfg.plant is not None:
+        if cfg.events:
+            raise ConfigError([("events", "events change the known model's world; combining "
+                                          "them with a plant block is not supported yet")], src)
+        plant_rb = reduce_robot(plant_robot(cfg.plant, full_robot,
+                                            source.parent if source else None), locked)
+        plant_rb.set_gravity(cfg.gravity)
+        plant = make_plant(cfg.plant, plant_rb, joints, make_dynamics(
+            plant_rb.model, "casadi" if cfg.backend == "casadi" else "pinocchio"))
+    model_learner = _model_learner(cfg, robot, joints, actuated, source)
+    loop = ClosedLoop(plant, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator,
+                      error_mask)
     check_events(robot.model, cfg.events, src)
     hybrid = None
     if cfg.walking is not None or cfg.actuation is not None:
@@ -331,11 +351,14 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         if cfg.backend == "compiled":
             raise ConfigError([("backend", "walking/actuation need the pinocchio or casadi "
                                            "backend (the compiled cycle has no hybrid loop)")], src)
-        hybrid = HybridLoop(dynamics, law, _allocation(cfg, robot, joints, src),
+        if model_learner is not None:
+            raise ConfigError([("learning.model", "model learning is not supported for "
+                                                  "walking/actuated robots yet")], src)
+        hybrid = HybridLoop(plant, law, _allocation(cfg, robot, joints, src),
                             _walker(cfg, robot, joints, src), actuated, dt, cfg.sim.substeps,
                             cfg.sim.integrator, error_mask)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
-                     init, source, hybrid)
+                     init, source, hybrid, plant, model_learner)
     if L.sensitivity == "casadi" and learner.n_learned:
         from feltool.compiled import feedforward_jacobian
 
@@ -346,6 +369,13 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         if cfg.events:
             raise ConfigError([("events", "backend 'compiled' simulates the known model only; "
                                           "use pinocchio or casadi for events")], src)
+        # The compiled cycle simulates the known model and has no model correction.
+        problems = [(f, f"backend 'compiled' does not support '{f}' yet; use backend "
+                        f"pinocchio or casadi") for f, val in (("plant", cfg.plant),
+                                                              ("learning.model", L.model))
+                    if val is not None]
+        if problems:
+            raise ConfigError(problems, str(source) if source else None)
         check_supported(exp)
     return exp
 
@@ -431,6 +461,43 @@ def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
                   w.fall.max_abs if w.fall else np.inf, free, foot)
 
 
+def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actuated: np.ndarray,
+                   source: Path | None) -> ModelLearner | None:
+    """The classic-FEL learner of ``learning.model`` (None when absent)."""
+    M = cfg.learning.model
+    if M is None:
+        return None
+    problems = []
+    if cfg.learning.step == "per_step":
+        problems.append(("learning.model", "needs learning.step: per_cycle (the trajectory "
+                                           "learner's per_step loop has no model correction)"))
+    if M.step == "per_step" and M.update != "gradient":
+        problems.append(("learning.model.update", "per_step learning supports only 'gradient'"))
+    if (cfg.learning.sensitivity == "casadi" and M.jacobian == "learned"
+            and M.features == "regressor"):
+        problems.append(("learning.model.jacobian", "'learned' needs learning.sensitivity exact or "
+                                                    "finite_difference (the casadi Jacobian is "
+                                                    "built from the known model); or use nominal"))
+    if problems:
+        raise ConfigError(problems, str(source) if source else None)
+    if M.features == "regressor":
+        features = RegressorFeatures(robot.model)
+    else:
+        features = PhaseBasisFeatures(cfg.steps_per_cycle, len(joints), M.basis, M.width, joints)
+    if M.error == "all_feedback":
+        mask = actuated.astype(float)
+    elif M.error == "tracking":
+        mask = np.array([1.0 if cfg.joints[n].role == "track" else 0.0 for n in joints])
+    else:
+        unknown = [n for n in M.error if n not in joints]
+        if unknown:
+            raise ConfigError([("learning.model.error", f"not moving joints of the model: "
+                                                        f"{', '.join(unknown)}")],
+                              str(source) if source else None)
+        mask = np.array([1.0 if n in M.error else 0.0 for n in joints])
+    return ModelLearner(features, mask * actuated, M.rate, M.update, M.step, M.damping)
+
+
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:
     """Goals that meet every stabilizing target with the other joints at their goals."""
     q, _ = law.consistent_state(goals, np.zeros_like(goals))
@@ -492,6 +559,8 @@ class CycleOutcome:
         trace: Returns ``(CycleLog, Qd)`` of the cycle (computed on demand).
         fall: Why a walker fell during the cycle (hybrid loop), or None.
         impacts: ``(step, by_guard, swing-foot x [m])`` of each impact (walkers).
+        theta_m_next: The inverse-model correction after the cycle (``learning.model``), else
+            None.
     """
 
     theta_next: np.ndarray
@@ -507,6 +576,7 @@ class CycleOutcome:
     fb_error: float = 0.0
     fall: str | None = None
     impacts: list = field(default_factory=list)
+    theta_m_next: np.ndarray | None = None
 
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
@@ -536,6 +606,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
     reason, start, wall_before = None, 1, 0.0
     run_cycle = _cycle_runner(exp, theta)
+    model = exp.model_learner
+    theta_m = model.initial_parameters() if model else None
+    model_history = [theta_m]
     saved = checkpoint.load() if checkpoint is not None else None
     if saved is not None:
         start = saved["cycle"] + 1
@@ -545,18 +618,24 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         traces = {k[len("trace_"):]: v for k, v in saved.items() if k.startswith("trace_")}
         if "rmp_x" in saved:
             _restore_rmp_states(run_cycle, saved)
+        if model is not None:
+            theta_m, model_history = saved["model_theta"], list(saved["model_history"])
     t0 = time.perf_counter()
     plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
     for cycle in range(start, cycles + 1):
         if cycle > start:
             plant = _plant_for_cycle(exp, cycle) or plant
-        out = run_cycle(theta, q, v, plant)
+        out = run_cycle(theta, q, v, plant, theta_m)
         for _, by_guard, _ in out.impacts:
             impacts["guard" if by_guard else "clock"] += 1
         reason = _divergence(exp, out)
         if reason:
             break
         row = _metrics(exp, seed, cycle, out, theta)
+        if model is not None:
+            row["model_param_norm"] = float(np.linalg.norm(theta_m))
+            theta_m = out.theta_m_next
+            model_history.append(theta_m)
         rows.append(row)
         if cycle == 1:
             traces.update(_trace("first", *out.trace()))
@@ -570,7 +649,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             on_cycle(cycle, *out.trace(), row["fb_abs_mean_error"])
         if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
             _save_checkpoint(checkpoint, cycle, theta, q, v, rows, history, traces,
-                             wall_before + time.perf_counter() - t0, run_cycle)
+                             wall_before + time.perf_counter() - t0, run_cycle,
+                             (theta_m, model_history) if model is not None else None)
             if stop_requested() and cycle < cycles:
                 raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
     wall = wall_before + time.perf_counter() - t0
@@ -594,6 +674,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         cols = [c for c, p in enumerate(exp.learner.learned) if sl.start <= p < sl.stop]
         params[f"{name}.weights_history"] = hist[:, cols[:-1]]
         params[f"{name}.goal_history"] = hist[:, cols[-1]]
+    if model is not None:
+        params["model.theta"] = theta_m
+        params["model.theta_history"] = np.array(model_history)
     return SeedResult(seed, rows, summary, params, traces)
 
 
@@ -606,9 +689,9 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOut
     """
     if exp.config.backend == "compiled":
         run = _compiled_runner(exp)
-        return lambda theta, q, v, plant: run(theta, q, v)
+        return lambda theta, q, v, plant, theta_m=None: run(theta, q, v)
     if exp.hybrid is not None:
-        return lambda theta, q, v, plant: _hybrid_cycle(exp, theta, q, v, plant)
+        return lambda theta, q, v, plant, theta_m=None: _hybrid_cycle(exp, theta, q, v, plant)
     loops: dict[int, ClosedLoop] = {}
 
     def loop_for(plant: Dynamics) -> ClosedLoop:
@@ -621,15 +704,18 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOut
                                           exp.loop.error_rows)
         return loops[id(plant)]
 
+    if exp.model_learner is not None:
+        return lambda theta, q, v, plant, theta_m: _model_cycle(exp, theta, q, v, theta_m,
+                                                                loop_for(plant))
     if exp.config.learning.step == "per_step":
         states = _limit_cycle_states(exp, theta0)
 
-        def per_step(theta, q, v, plant):
+        def per_step(theta, q, v, plant, theta_m=None):
             return _outcome(exp, *_per_step_cycle(exp, theta, q, v, states, loop_for(plant)))
 
         per_step.rmp_states = states
         return per_step
-    return lambda theta, q, v, plant: _per_cycle(exp, theta, q, v, loop_for(plant))
+    return lambda theta, q, v, plant, theta_m=None: _per_cycle(exp, theta, q, v, loop_for(plant))
 
 
 def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
@@ -648,8 +734,10 @@ def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
 
 
 def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history, traces,
-                     wall, run_cycle) -> None:
+                     wall, run_cycle, model_state=None) -> None:
     arrays = {"theta": theta, "q": q, "v": v, "history": np.array(history)}
+    if model_state is not None:
+        arrays["model_theta"], arrays["model_history"] = model_state[0], np.array(model_state[1])
     arrays.update({f"trace_{k}": val for k, val in traces.items()})
     states = getattr(run_cycle, "rmp_states", None)
     if states is not None:
@@ -694,6 +782,35 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
         theta_next = exp.learner.step(theta, J, log.u_err)
     out = _outcome(exp, log, log.Qd, theta_next)
     out.fall, out.impacts = log.fall, list(log.impacts)
+    return out
+
+
+def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
+                 loop: ClosedLoop) -> CycleOutcome:
+    """One cycle with the learned inverse-model correction in the feedforward, then both
+    updates: the trajectory's (eq. 3.6) and the model's (eq. 3.4)."""
+    model = exp.model_learner
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    derivs = None
+    if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
+        u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+    else:
+        u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
+    log, theta_m_next = model.run_cycle(loop, q, v, R, Rd, u_ff, (Qd, Vd, Ad), theta_m)
+    theta_next = theta
+    if exp.learner.n_learned and np.all(np.isfinite(log.v)):
+        dyn = exp.dynamics
+        if exp.config.learning.model.jacobian == "learned":
+            learned = model.learned_dynamics(theta_m)  # the model this cycle's u_ff came from
+            if learned is not None:
+                dyn = learned
+                if derivs is not None:
+                    derivs = learned.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
+        J = exp.learner.jacobian(dyn, theta, Qd, Vd, Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_err)
+    out = _outcome(exp, log, Qd, theta_next)
+    out.theta_m_next = theta_m_next
     return out
 
 
