@@ -192,27 +192,69 @@ def _warn_once(message: str) -> None:
         print(f"feltool: note: {message}", file=sys.stderr)
 
 
+#: Learning cycles run by one call of the compiled code (the update between them included).
+CYCLES_PER_CALL = 10
+
+
+def learning_graph(exp, cycles: int) -> ca.Function:
+    r"""``cycles`` learning cycles, update included: ``(theta, x0) -> (states, stats)``.
+
+    The update of :meth:`feltool.fel.FeedbackErrorLearner.apply` in CasADi: gradient
+    :math:`\theta \mathrel{+}= \alpha \odot g`, or the Levenberg-Marquardt step on the
+    weights. ``states`` column k is :math:`(\theta, x)` after cycle k; ``stats`` column k is
+    ``(fb_abs_mean (nv), track_err_rms (nv), max_error, max_speed)`` of cycle k.
+    """
+    learner, P = exp.learner, exp.primitives.n_params
+    nv = exp.robot.model.nv
+    one = cycle_graph(exp, False)
+    state = ca.MX.sym("state", P + 2 * nv)
+    theta, x = state[:P], state[P:]
+    x_end, fb, rms, grad, hess, max_err, max_speed = one(theta, x)
+    delta = ca.DM(learner.rates) * grad
+    if learner.update == "gauss_newton" and learner.n_learned:
+        w = np.flatnonzero(~learner.is_goal).tolist()
+        H = hess[w, w]
+        lam = learner.damping * ca.trace(H) / len(w) + 1e-300
+        step_w = ca.DM(learner.rates[w]) * ca.solve(H + lam * ca.DM.eye(len(w)), grad[w])
+        delta = ca.vertcat(*[step_w[w.index(i)] if i in w else delta[i]
+                             for i in range(learner.n_learned)])
+    scatter = np.zeros((P, max(learner.n_learned, 1)))
+    scatter[learner.learned, np.arange(learner.n_learned)] = 1.0
+    theta_next = theta + ca.mtimes(ca.DM(scatter), delta) if learner.n_learned else theta
+    step = ca.Function("learn_step", [state], [ca.vertcat(theta_next, x_end),
+                                               ca.vertcat(fb, rms, max_err, max_speed)])
+    return step.mapaccum("learn_cycles", cycles)
+
+
 class CompiledCycle:
     """Runs learning cycles of an experiment through the compiled graph.
 
-    ``lean(theta, x0)`` returns the metrics and FEL accumulations; ``full(theta, x0)`` also the
-    states, feedback and forward trajectory of every step (used for the first and last cycle).
+    ``lean(theta, x0)`` returns one cycle's metrics and FEL accumulations; ``full(theta, x0)``
+    also the states, feedback and forward trajectory of every step (for the first and last
+    cycle's traces); ``many(theta, x0)`` runs :data:`CYCLES_PER_CALL` cycles with their updates
+    in one call.
     """
 
     def __init__(self, exp, compile: bool = True):
         check_supported(exp)
         self.n, self.nv = exp.primitives.n_steps, exp.robot.model.nv
-        lean, full = cycle_graph(exp, False), cycle_graph(exp, True)
+        fns = [cycle_graph(exp, False), cycle_graph(exp, True),
+               learning_graph(exp, CYCLES_PER_CALL)]
         if compile:
-            lean, full = compile_functions([lean, full])
-        self._lean, self._lean_call = lean, _Buffered(lean)
-        self._full = _Buffered(full)
+            fns = compile_functions(fns)
+        self._lean, self._full, self._many = (_Buffered(f) for f in fns)
 
     def lean(self, theta: np.ndarray, x0: np.ndarray) -> list[np.ndarray]:
-        return self._lean_call(theta, x0)
+        return self._lean(theta, x0)
 
     def full(self, theta: np.ndarray, x0: np.ndarray) -> list[np.ndarray]:
         return self._full(theta, x0)
+
+    def many(self, theta: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(states, stats)`` of the next :data:`CYCLES_PER_CALL` cycles (see
+        :func:`learning_graph`), one column per cycle."""
+        states, stats = self._many(np.concatenate([theta, x0]))
+        return states.reshape(-1, CYCLES_PER_CALL), stats.reshape(-1, CYCLES_PER_CALL)
 
 
 def feedforward_jacobian(exp) -> ca.Function:

@@ -89,3 +89,29 @@ def test_compiled_backend_rejects_what_it_cannot_do(tmp_path):
                   "--set", "learning.step=per_step")
     assert res.returncode == 2
     assert "learning.step: backend 'compiled' supports only per_cycle" in res.stderr
+
+
+def test_compiled_runs_several_cycles_per_call_and_resumes_bit_identically(tmp_path, monkeypatch):
+    """The compiled code runs CYCLES_PER_CALL cycles per call; stopping at a cycle that is not a
+    multiple of it and resuming from the checkpoint gives the same rows and parameters."""
+    import feltool.experiment as experiment
+    from feltool.checkpoint import Checkpointer, Interrupted
+    from feltool.compiled import CYCLES_PER_CALL
+
+    exp = load_experiment(STANDARD, ["backend=compiled"])
+    ref = run_seed(exp, 0, 30)
+    calls = {"n": 0}
+
+    def stop_after_13():
+        calls["n"] += 1
+        return calls["n"] >= 13
+
+    assert 13 % CYCLES_PER_CALL
+    monkeypatch.setattr(experiment, "stop_requested", stop_after_13)
+    with pytest.raises(Interrupted):
+        run_seed(exp, 0, 30, checkpoint=Checkpointer(tmp_path, 0, every=5))
+    monkeypatch.undo()
+    res = run_seed(load_experiment(STANDARD, ["backend=compiled"]), 0, 30,
+                   checkpoint=Checkpointer(tmp_path, 0, every=5))
+    assert res.rows == ref.rows
+    np.testing.assert_array_equal(res.params["elbow.weights"], ref.params["elbow.weights"])
