@@ -146,6 +146,13 @@ def print_summary(summary: dict, out_dir: Path) -> None:
         conv = "-" if s["converged_cycle"] is None else str(s["converged_cycle"])
         print(f"  {s['seed']:>4} {s['cycles']:>6} {s['fb_initial']:>11.4g} {s['fb_final']:>10.3g} "
               f"{s['fb_ratio']:>8.2%} {conv:>9} {s['steps_per_s']:>9.0f}")
+    for s in summary["seeds"]:
+        lim = s.get("limits")
+        if isinstance(lim, dict) and (lim["joint_limit_steps"] or lim["torque_limit_steps"]):
+            parts = [f"{kind} limits of " + ", ".join(f"{j} ({c} steps)" for j, c in d.items())
+                     for kind, d in (("position", lim["joint_limit_steps"]),
+                                     ("torque", lim["torque_limit_steps"])) if d]
+            print(f"  seed {s['seed']} hit the URDF's " + "; ".join(parts))
     conv = agg["converged_cycle_max"]
     print(f"  converged (below 5 % of the initial feedback for good): {agg['n_converged']}/"
           f"{agg['n_seeds']} seeds" + (f", mean cycle {agg['converged_cycle_mean']:.1f}, "

@@ -53,6 +53,9 @@ def check_supported(exp) -> None:
     if L.sensitivity == "finite_difference":
         problems.append(("learning.sensitivity", "backend 'compiled' computes exact sensitivities; "
                                                  "use exact (or casadi)"))
+    if "enforce" == exp.config.sim.joint_limits or "saturate" == exp.config.sim.torque_limits:
+        problems.append(("sim", "backend 'compiled' neither enforces joint limits nor saturates "
+                                "torques; use report/ignore or another backend"))
     if exp.robot.model.nq != exp.robot.model.nv:
         problems.append(("robot", "backend 'compiled' needs revolute/prismatic joints only"))
     if problems:

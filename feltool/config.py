@@ -41,6 +41,13 @@ class SimConfig(Strict):
                                          "from its reference, in [rad].")
     max_velocity: PositiveFloat = Field(1000.0, description="A seed is stopped as diverged when a "
                                         "joint velocity exceeds this, in [rad/s].")
+    joint_limits: Literal["report", "enforce", "ignore"] = Field("report", description="URDF "
+        "position limits: report the steps beyond them (summary.json and terminal), enforce them "
+        "(hold the joint at the limit) as well, or ignore them. lower = upper in the URDF means "
+        "no limit.")
+    torque_limits: Literal["report", "saturate", "ignore"] = Field("report", description="URDF "
+        "effort limits: report the steps the commanded torque exceeds them, saturate the applied "
+        "torque as well, or ignore them. An effort of 0 in the URDF means no limit.")
 
 
 class PrimitiveConfig(Strict):

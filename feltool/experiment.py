@@ -28,7 +28,7 @@ from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeature
 from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
-from feltool.simulate import ClosedLoop, CycleLog
+from feltool.simulate import ClosedLoop, CycleLog, Limits
 
 
 @dataclass
@@ -337,8 +337,17 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         plant = make_plant(cfg.plant, plant_rb, joints, make_dynamics(
             plant_rb.model, "casadi" if cfg.backend == "casadi" else "pinocchio"))
     model_learner = _model_learner(cfg, robot, joints, actuated, source)
+    limits = None
+    if dynamics.euclidean and (cfg.sim.joint_limits, cfg.sim.torque_limits) != ("ignore",) * 2:
+        m = robot.model
+        # URDFs write "no limit" as lower = upper (often 0) and effort 0.
+        ranged = m.lowerPositionLimit < m.upperPositionLimit
+        limits = Limits(np.where(ranged, m.lowerPositionLimit, -np.inf),
+                        np.where(ranged, m.upperPositionLimit, np.inf),
+                        np.where(m.effortLimit > 0, m.effortLimit, np.inf),
+                        cfg.sim.joint_limits, cfg.sim.torque_limits)
     loop = ClosedLoop(plant, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator,
-                      error_mask)
+                      error_mask, limits)
     check_events(robot.model, cfg.events, src)
     hybrid = None
     if cfg.walking is not None or cfg.actuation is not None:
@@ -577,6 +586,7 @@ class CycleOutcome:
     fall: str | None = None
     impacts: list = field(default_factory=list)
     theta_m_next: np.ndarray | None = None
+    limit_hits: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
@@ -622,12 +632,19 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             theta_m, model_history = saved["model_theta"], list(saved["model_history"])
     t0 = time.perf_counter()
     plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
+    nv = len(exp.joints)
+    hits = [np.zeros(nv, int), np.zeros(nv, int)]
+    checked = False
     for cycle in range(start, cycles + 1):
         if cycle > start:
             plant = _plant_for_cycle(exp, cycle) or plant
         out = run_cycle(theta, q, v, plant, theta_m)
         for _, by_guard, _ in out.impacts:
             impacts["guard" if by_guard else "clock"] += 1
+        if out.limit_hits is not None:
+            checked = True
+            hits[0] += out.limit_hits[0]
+            hits[1] += out.limit_hits[1]
         reason = _divergence(exp, out)
         if reason:
             break
@@ -660,6 +677,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     if checkpoint is not None:
         checkpoint.clear()
     summary = _seed_summary(exp, seed, rows, reason, wall, steps)
+    summary["limits"] = ({"joint_limit_steps": {n: int(c) for n, c in zip(exp.joints, hits[0]) if c},
+                          "torque_limit_steps": {n: int(c) for n, c in zip(exp.joints, hits[1]) if c}}
+                         if checked else "not checked")
     if exp.hybrid is not None and exp.hybrid.walker is not None:
         summary["guard_impacts"], summary["clock_impacts"] = impacts["guard"], impacts["clock"]
     if exp.hybrid is not None and rows and reason is None and cfg.walking is not None \
@@ -701,7 +721,7 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOut
             loops.clear()
             loops[id(plant)] = ClosedLoop(plant, exp.law, exp.loop.actuated, exp.loop.dt,
                                           exp.loop.substeps, exp.loop.integrator,
-                                          exp.loop.error_rows)
+                                          exp.loop.error_rows, exp.loop.limits)
         return loops[id(plant)]
 
     if exp.model_learner is not None:
@@ -827,7 +847,8 @@ def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> Cycl
                  and np.all(np.isfinite(log.q_end))),
             lambda: (log, Qd),
             float(np.abs(log.u_rows[:, exp.law.stabilizing]).mean(axis=0).sum()),
-            float(np.abs(log.u_err).mean(axis=0).sum()))
+            float(np.abs(log.u_err).mean(axis=0).sum()),
+            limit_hits=getattr(log, "limit_hits", None))
 
 
 def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:

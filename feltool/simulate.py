@@ -33,6 +33,7 @@ class CycleLog:
         q_end, v_end: State after the last step.
         u_rows: Each controller's own output, ``(n, nv)`` (equals ``u_fb`` for linear laws).
         u_err: The learning signal: joint torques of the error controllers, ``(n, nv)``.
+        limit_hits: Steps per joint beyond a position limit and beyond a torque limit.
     """
 
     q: np.ndarray
@@ -42,6 +43,46 @@ class CycleLog:
     v_end: np.ndarray
     u_rows: np.ndarray | None = None
     u_err: np.ndarray | None = None
+    limit_hits: tuple[np.ndarray, np.ndarray] | None = None
+
+
+@dataclass
+class Limits:
+    """Joint and torque limits of the simulated robot (from the URDF) and what to do at them.
+
+    Attributes:
+        lower, upper: Position limits ``(nq,)`` in [rad] or [m].
+        effort: Torque limits ``(nv,)`` in [N m] or [N].
+        joints: ``report`` (count the steps outside), ``enforce`` (also hold the joint at the
+            limit: position clamped, velocity into the limit set to zero), or ``ignore``.
+        torques: ``report`` (count the steps the commanded torque exceeds the limit),
+            ``saturate`` (also clip the applied torque), or ``ignore``.
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+    effort: np.ndarray
+    joints: str = "report"
+    torques: str = "report"
+
+    def clamp(self, q: np.ndarray, v: np.ndarray) -> None:
+        """Hold joints at their limits, in place (``joints: enforce``)."""
+        low, high = q < self.lower, q > self.upper
+        if low.any() or high.any():
+            np.clip(q, self.lower, self.upper, out=q)
+            v[(low & (v < 0)) | (high & (v > 0))] = 0.0
+
+    def hits(self, Q: np.ndarray, Tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Steps per joint at or beyond a position limit, and beyond a torque limit."""
+        joints = np.zeros(Q.shape[1], int)
+        torques = np.zeros(Tau.shape[1], int)
+        if self.joints != "ignore":
+            tol = 1e-12
+            joints = ((Q <= self.lower + tol) | (Q >= self.upper - tol)).sum(axis=0) \
+                if self.joints == "enforce" else ((Q < self.lower) | (Q > self.upper)).sum(axis=0)
+        if self.torques != "ignore":
+            torques = (np.abs(Tau) > self.effort * (1 + 1e-12)).sum(axis=0)
+        return joints, torques
 
 
 class ClosedLoop:
@@ -54,12 +95,15 @@ class ClosedLoop:
         dt: Control step in [s].
         substeps: Integration steps per control step.
         integrator: ``semi_implicit_euler`` or ``explicit_euler``.
+        error_rows: ``(nv,)`` 1 for the controllers whose feedback is the learning signal.
+        limits: Joint and torque limits (None: no checks).
     """
 
     def __init__(self, dynamics: Dynamics, law: FeedbackLaw, actuated: np.ndarray, dt: float,
                  substeps: int = 1, integrator: str = "semi_implicit_euler",
-                 error_rows: np.ndarray | None = None):
+                 error_rows: np.ndarray | None = None, limits: Limits | None = None):
         self.dynamics = dynamics
+        self.limits = limits
         self.error_rows = (np.zeros(len(actuated)) if error_rows is None
                            else np.asarray(error_rows, dtype=float))
         self.law = law
@@ -73,6 +117,9 @@ class ClosedLoop:
         h = self.dt / self.substeps
         forward, integrate = self.dynamics.forward, self.dynamics.integrate
         semi = self.integrator == "semi_implicit_euler"
+        lim = self.limits
+        if lim is not None and lim.torques == "saturate":
+            tau = np.clip(tau, -lim.effort, lim.effort)
         for _ in range(self.substeps):
             a = forward(q, v, tau)
             if semi:
@@ -80,6 +127,9 @@ class ClosedLoop:
                 q = integrate(q, h * v)
             else:
                 q, v = integrate(q, h * v), v + h * a
+            if lim is not None and lim.joints == "enforce":
+                q, v = q.copy(), v.copy()
+                lim.clamp(q, v)
         return q, v
 
     def run_cycle(self, q: np.ndarray, v: np.ndarray, R: np.ndarray, Rd: np.ndarray,
@@ -104,9 +154,14 @@ class ClosedLoop:
         qx, vx = x[:nv], x[nv:]  # views into x
         forward, h, substeps = self.dynamics.forward, self.dt / self.substeps, self.substeps
         semi = self.integrator == "semi_implicit_euler"
+        lim = self.limits
+        saturate = lim is not None and lim.torques == "saturate"
+        enforce = lim is not None and lim.joints == "enforce"
         for k in range(n):
             X[k] = x
             tau = F[k] - SK @ x
+            if saturate:
+                tau = np.clip(tau, -lim.effort, lim.effort)
             for _ in range(substeps):
                 a = forward(qx, vx, tau)
                 if semi:
@@ -115,9 +170,14 @@ class ClosedLoop:
                 else:
                     qx += h * vx
                     vx += h * a
+                if enforce:
+                    lim.clamp(qx, vx)
         U = B - X @ K.T
-        return CycleLog(X[:, :nv], X[:, nv:], U, x[:nv].copy(), x[nv:].copy(), U,
-                        U * self.error_rows)
+        log = CycleLog(X[:, :nv], X[:, nv:], U, x[:nv].copy(), x[nv:].copy(), U,
+                       U * self.error_rows)
+        if lim is not None:
+            log.limit_hits = lim.hits(log.q, F - X @ SK.T)
+        return log
 
     def _run_cycle_general(self, q, v, R, Rd, u_ff) -> CycleLog:
         """The same loop for nonlinear feedback laws (frame angles) and for models whose
@@ -125,8 +185,13 @@ class ClosedLoop:
         n, nv = len(R), v.shape[0]
         Q, V = np.empty((n, q.shape[0])), np.empty((n, nv))
         U, Urows, Uerr = np.empty((n, nv)), np.empty((n, nv)), np.empty((n, nv))
+        Tau = np.empty((n, nv))
         for k in range(n):
             Q[k], V[k] = q, v
             U[k], Urows[k], Uerr[k] = self.law.terms(q, v, R[k], Rd[k], self.error_rows)
-            q, v = self.advance(q, v, self.actuated * (u_ff[k] + U[k]))
-        return CycleLog(Q, V, U, q, v, Urows, Uerr)
+            Tau[k] = self.actuated * (u_ff[k] + U[k])
+            q, v = self.advance(q, v, Tau[k])
+        log = CycleLog(Q, V, U, q, v, Urows, Uerr)
+        if self.limits is not None and Q.shape[1] == nv:
+            log.limit_hits = self.limits.hits(Q, Tau)
+        return log
