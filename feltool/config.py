@@ -406,6 +406,9 @@ class ExperimentConfig(Strict):
     description: str = Field("", description="Free text shown in summaries.")
     robot: str = Field(min_length=1, description="Bundled robot name, a URDF path (relative to "
                        "the config file), or example-robot-data:NAME.")
+    package_dirs: list[str] = Field(default_factory=list, description="Directories searched for "
+                                    "package:// mesh paths of a URDF file (relative to the "
+                                    "config file).")
     gravity: FiniteFloat | list[FiniteFloat] = Field(9.8, description="Gravity in [m/s^2]: a "
         "magnitude along the world's -z, or a 3-vector. The thesis uses 9.8.")
     backend: Literal["pinocchio", "casadi", "compiled"] = Field("pinocchio", description=

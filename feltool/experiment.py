@@ -144,7 +144,9 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
     robot = None
     if isinstance(raw.get("robot"), str) and raw["robot"]:
         try:
-            robot = load_robot(raw["robot"], base_dir=source.parent if source else None)
+            dirs = raw.get("package_dirs") if isinstance(raw.get("package_dirs"), list) else []
+            robot = load_robot(raw["robot"], base_dir=source.parent if source else None,
+                               package_dirs=[str(d) for d in dirs])
         except RobotError as exc:
             problems.append(("robot", str(exc)))
     if robot is not None:

@@ -114,12 +114,15 @@ class Robot:
         return self._visual_model
 
 
-def load_robot(spec: str, base_dir: Path | None = None) -> Robot:
+def load_robot(spec: str, base_dir: Path | None = None,
+               package_dirs: list[str] | None = None) -> Robot:
     """Load a robot by bundled name, URDF path, or ``example-robot-data:NAME``.
 
     Args:
         spec: ``two_link_arm`` | ``path/to/robot.urdf`` | ``example-robot-data:ur5``.
         base_dir: Directory that relative URDF paths are resolved against (the config's).
+        package_dirs: Extra directories for ``package://`` mesh paths (relative ones resolve
+            against ``base_dir``).
 
     Raises:
         RobotError: naming the file and element when the robot cannot be loaded.
@@ -130,7 +133,9 @@ def load_robot(spec: str, base_dir: Path | None = None) -> Robot:
         path = Path(spec).expanduser()
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
-        return load_urdf(path, source=spec)
+        dirs = [str(Path(d) if Path(d).is_absolute() or base_dir is None else base_dir / d)
+                for d in (package_dirs or [])]
+        return load_urdf(path, source=spec, package_dirs=dirs)
     bundled = data_dir("robots") / f"{spec}.urdf"
     if bundled.is_file():
         return load_urdf(bundled, source=spec, name=spec)
@@ -162,6 +167,24 @@ def load_urdf(path: Path, source: str | None = None, name: str | None = None,
         raise RobotError(f"{path}: Pinocchio could not build a model: {exc}") from None
     return Robot(name=name or path.stem, model=model, source=source or str(path),
                  urdf_path=path, package_dirs=dirs)
+
+
+def load_urdf_string(text: str, name: str = "robot", package_dirs: list[str] | None = None,
+                     base_dir: Path | None = None) -> Robot:
+    """A robot from URDF text (already expanded: no xacro), with the same checks as a file;
+    mesh paths resolve against ``base_dir`` (default: the current directory) and
+    ``package_dirs``."""
+    where = f"<URDF string '{name}'>"
+    if not text.strip():
+        raise RobotError(f"{where}: the URDF is empty")
+    base = Path(base_dir) if base_dir is not None else Path.cwd()
+    dirs = [str(base)] + list(package_dirs or [])
+    _check_urdf_xml(text, where, base, dirs)
+    try:
+        model = pin.buildModelFromXML(text)
+    except Exception as exc:
+        raise RobotError(f"{where}: Pinocchio could not build a model: {exc}") from None
+    return Robot(name=name, model=model, source=where, urdf_path=None, package_dirs=dirs)
 
 
 def _check_urdf_xml(text: str, where: str, base: Path | None = None,

@@ -11,17 +11,11 @@ from feltool.experiment import load_experiment, run_seed
 from .conftest import CONFIGS, ROOT, feltool
 
 ARM = (ROOT / "robots" / "two_link_arm.urdf").read_text()
-TIGHT = ARM.replace('''<joint name="elbow" type="revolute">
-    <parent link="link1"/>
-    <child link="link2"/>
-    <origin xyz="1.0 0 0" rpy="0 0 0"/>
-    <axis xyz="0 -1 0"/>
-    <limit lower="-6.2832" upper="6.2832" effort="1000" velocity="100"/>''', '''<joint name="elbow" type="revolute">
-    <parent link="link1"/>
-    <child link="link2"/>
-    <origin xyz="1.0 0 0" rpy="0 0 0"/>
-    <axis xyz="0 -1 0"/>
-    <limit lower="-0.3" upper="0.3" effort="8" velocity="100"/>''')
+_ELBOW = '<joint name="elbow" type="revolute">'
+_WIDE = '<limit lower="-6.2832" upper="6.2832" effort="1000" velocity="100"/>'
+_TIGHT = '<limit lower="-0.3" upper="0.3" effort="8" velocity="100"/>'
+_head, _elbow = ARM.split(_ELBOW)
+TIGHT = _head + _ELBOW + _elbow.replace(_WIDE, _TIGHT, 1)  # the elbow's limits only
 
 
 def tight_config(tmp_path, **sim):

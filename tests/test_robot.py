@@ -54,3 +54,21 @@ def test_unknown_joint_lists_the_robots_joints():
     robot = load_robot("two_link_arm")
     with pytest.raises(RobotError, match="its joints are: shoulder, elbow"):
         robot.joint_id("wrist")
+
+
+def test_package_dirs_resolve_package_meshes_and_urdf_strings_load(tmp_path):
+    from feltool.robot import load_urdf_string
+
+    mesh_dir = tmp_path / "pkgs" / "my_robot" / "meshes"
+    mesh_dir.mkdir(parents=True)
+    (mesh_dir / "link.stl").write_text("solid empty\nendsolid empty\n")
+    text = ARM.replace('<geometry><sphere radius="0.06"/></geometry>',
+                       '<geometry><mesh filename="package://my_robot/meshes/link.stl"/></geometry>', 1)
+    (tmp_path / "arm.urdf").write_text(text)
+    with pytest.raises(RobotError, match="package://my_robot/meshes/link.stl' not found"):
+        load_robot("arm.urdf", base_dir=tmp_path)
+    assert load_robot("arm.urdf", base_dir=tmp_path, package_dirs=["pkgs"]).model.nv == 2
+    robot = load_urdf_string(text, "arm", package_dirs=[str(tmp_path / "pkgs")])
+    assert robot.joint_names == ["shoulder", "elbow"] and robot.urdf_path is None
+    with pytest.raises(RobotError, match="URDF string 'arm'"):
+        load_urdf_string(text.replace("<robot", "<robbot", 1), "arm")
