@@ -775,15 +775,20 @@ def _restore_rmp_states(run_cycle, saved: dict) -> None:
         run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
 
 
+def _feedforward(exp: Experiment, Qd, Vd, Ad) -> tuple[np.ndarray, list | None]:
+    """:math:`u_{ff}` along the desired trajectory, with the RNEA derivatives (from the same
+    pass) when the learner needs exact sensitivities."""
+    if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
+        u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+        return u_ff, derivs
+    return feedforward(exp.dynamics, Qd, Vd, Ad), None
+
+
 def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop) -> CycleOutcome:
     """One cycle on the limit cycle of the current parameters, then one update (eq. 3.6)."""
     Qd, Vd, Ad = exp.primitives.desired(theta)
     R, Rd = exp.law.references(Qd, Vd)
-    derivs = None
-    if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
-        u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
-    else:
-        u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
+    u_ff, derivs = _feedforward(exp, Qd, Vd, Ad)
     log = loop.run_cycle(q, v, R, Rd, u_ff)
     theta_next = theta
     if exp.learner.n_learned and np.all(np.isfinite(log.v)):
@@ -814,11 +819,7 @@ def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
     model = exp.model_learner
     Qd, Vd, Ad = exp.primitives.desired(theta)
     R, Rd = exp.law.references(Qd, Vd)
-    derivs = None
-    if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
-        u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
-    else:
-        u_ff = feedforward(exp.dynamics, Qd, Vd, Ad)
+    u_ff, derivs = _feedforward(exp, Qd, Vd, Ad)
     log, theta_m_next = model.run_cycle(loop, q, v, R, Rd, u_ff, (Qd, Vd, Ad), theta_m)
     theta_next = theta
     if exp.learner.n_learned and np.all(np.isfinite(log.v)):

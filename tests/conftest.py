@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -22,3 +24,19 @@ def feltool(*args: str, cwd: Path | None = None, timeout: float = 600) -> subpro
     """Run the ``feltool`` command in a fresh interpreter, as a user would."""
     return subprocess.run([sys.executable, "-m", "feltool.cli", *args], capture_output=True,
                           text=True, cwd=cwd, timeout=timeout)
+
+
+def port_of(url: str) -> int:
+    """The port number in a URL such as ``tcp://127.0.0.1:6000`` or ``http://127.0.0.1:7000/``."""
+    return int(re.search(r":(\d+)(/|$)", url).group(1))
+
+
+def port_free(port: int) -> bool:
+    """Nothing listens on the port: a server could bind it (TIME_WAIT leftovers allowed)."""
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True

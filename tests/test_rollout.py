@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import ROOT, feltool
+from tests.conftest import ROOT, feltool, port_free, port_of
 
 CHROMIUM = Path("/usr/bin/chromium")
 needs_chromium = pytest.mark.skipif(not CHROMIUM.exists(),
@@ -264,18 +264,8 @@ def test_rollout_html_plays_offline_from_file(browser, html_run):
 # the server: stopped on SIGTERM, loopback only
 # ------------------------------------------------------------------------------------------------
 
-def _port(url: str) -> int:
-    return int(re.search(r":(\d+)(/|$)", url).group(1))
-
-
-def _port_free(port: int) -> bool:
-    with socket.socket() as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
+_port = port_of
+_port_free = port_free
 
 
 def test_sigterm_stops_the_run_and_its_meshcat_server(tmp_path):

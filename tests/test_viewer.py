@@ -8,7 +8,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,6 +23,7 @@ import pytest
 
 from feltool.robot import load_robot
 from feltool.viewer import LiveViewer, ViewerError, _viewer_js, record_html
+from tests.conftest import port_free, port_of
 
 CHROMIUM = Path("/usr/bin/chromium")
 DT = 0.01
@@ -185,19 +185,8 @@ def _listening(pid: int) -> list[tuple[str, int]]:
             if c.status == psutil.CONN_LISTEN]
 
 
-def _port(url: str) -> int:
-    return int(re.search(r":(\d+)(/|$)", url).group(1))
-
-
-def _port_free(port: int) -> bool:
-    """Nothing listens on the port: a server could bind it (TIME_WAIT leftovers allowed)."""
-    with socket.socket() as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
+_port = port_of
+_port_free = port_free
 
 
 def _gone(pid: int, timeout: float) -> bool:
