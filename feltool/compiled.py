@@ -32,7 +32,12 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from feltool.dynamics.casadi_backend import symbolic_aba, symbolic_rnea, symbolic_rnea_derivatives
+from feltool.dynamics.casadi_backend import (
+    BufferedCall,
+    symbolic_aba,
+    symbolic_rnea,
+    symbolic_rnea_derivatives,
+)
 from feltool.errors import ConfigError
 
 _WARNED: set[str] = set()
@@ -245,7 +250,7 @@ class CompiledCycle:
                learning_graph(exp, CYCLES_PER_CALL)]
         if compile:
             fns = compile_functions(fns)
-        self._lean, self._full, self._many = (_Buffered(f) for f in fns)
+        self._lean, self._full, self._many = (BufferedCall(f) for f in fns)
 
     def lean(self, theta: np.ndarray, x0: np.ndarray) -> list[np.ndarray]:
         return self._lean(theta, x0)
@@ -277,25 +282,3 @@ def feedforward_jacobian(exp) -> ca.Function:
     learned = theta[learner.learned.tolist()]
     jac = ca.jacobian(ca.vec(U_ff), learned)  # column-major: sample-major rows
     return ca.Function("ff_jacobian", [theta], [ca.densify(jac)])
-
-
-class _Buffered:
-    """Low-overhead evaluation through ``Function.buffer()`` (results are fresh copies)."""
-
-    def __init__(self, fn: ca.Function):
-        self.fn = fn
-        self._buffer, self._eval = fn.buffer()
-        self._args = [np.zeros(fn.numel_in(i)) for i in range(fn.n_in())]
-        self._res = [np.zeros(fn.numel_out(i)) for i in range(fn.n_out())]
-        self._shapes = [fn.size_out(i) for i in range(fn.n_out())]
-        for i, arr in enumerate(self._args):
-            self._buffer.set_arg(i, memoryview(arr))
-        for i, arr in enumerate(self._res):
-            self._buffer.set_res(i, memoryview(arr))
-
-    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
-        for dst, src in zip(self._args, args, strict=True):
-            dst[:] = src
-        self._eval()
-        return [r.reshape(shape, order="F").copy() if shape[1] > 1 else r.copy()
-                for r, shape in zip(self._res, self._shapes, strict=True)]

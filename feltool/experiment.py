@@ -395,9 +395,9 @@ class _BufferedFn:
     """A one-input CasADi function called with low overhead (see feltool.compiled)."""
 
     def __init__(self, fn):
-        from feltool.compiled import _Buffered
+        from feltool.dynamics.casadi_backend import BufferedCall
 
-        self._call = _Buffered(fn)
+        self._call = BufferedCall(fn)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         return self._call(x)[0]

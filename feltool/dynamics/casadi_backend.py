@@ -398,7 +398,7 @@ def symbolic_rnea_derivatives(model: pin.Model) -> ca.Function:
 # The backend
 
 
-class _BufferedCall:
+class BufferedCall:
     """Evaluates a CasADi ``Function`` of dense vectors through ``Function.buffer()``.
 
     Calling a ``Function`` from Python with numpy arguments costs some 40 us of argument
@@ -463,9 +463,9 @@ class CasadiDynamics:
         self.rnea_fn: ca.Function = symbolic_rnea(model)
         self.aba_fn: ca.Function = symbolic_aba(model)
         self.derivatives_fn: ca.Function = symbolic_rnea_derivatives(model)
-        self._rnea = _BufferedCall(self.rnea_fn)
-        self._aba = _BufferedCall(self.aba_fn)
-        self._derivatives = _BufferedCall(self.derivatives_fn)
+        self._rnea = BufferedCall(self.rnea_fn)
+        self._aba = BufferedCall(self.aba_fn)
+        self._derivatives = BufferedCall(self.derivatives_fn)
 
     def __getstate__(self) -> dict:
         return {"model": self.model}
