@@ -7,6 +7,7 @@ a typo is never silently ignored, and every error names the YAML path that is wr
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -555,17 +556,20 @@ def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any
     return data
 
 
+# Pydantic puts the branch of a union (``int``, ``list[int]``, ``literal['a','b']``,
+# ``function-after[...]``) into an error's location; those are not YAML keys.
+_BRANCH = re.compile(r"^(int|float|str|bool|none|(list|dict|literal|tuple|function-\w+)\[.*\]"
+                     r"|constrained-.*|[A-Z]\w*Config)$")
+
+
 def _loc(loc: tuple) -> str:
-    return ".".join(str(p) for p in loc if not (isinstance(p, str) and p.startswith("function-")))
+    return ".".join(str(p) for p in loc if not (isinstance(p, str) and _BRANCH.match(p)))
 
 
 def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
     problems = []
     for err in exc.errors():
-        loc = tuple(p for p in err["loc"]
-                    if p not in ("int", "list[int]", "float", "list[float]", "str",
-                                 "list[constrained-int]", "literal['stabilizing','all_feedback']")
-                    and not str(p).startswith(("list[", "literal[", "constrained")))
+        loc = err["loc"]
         msg = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             msg = "unknown field (check the spelling; see docs/configuration.md)"
