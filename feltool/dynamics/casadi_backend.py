@@ -230,6 +230,20 @@ def _check_has_joints(model: pin.Model) -> None:
 # The algorithms
 
 
+def _velocity_pass(model: pin.Model, joints: list[_Joint], q, v):
+    """Root-to-leaves pass shared by RNEA and ABA: each joint's transform from its parent
+    ``X_i``, body velocity ``v_i = X_i v_p + S qd_i`` and bias ``v_i x (S qd_i)``."""
+    nj = model.njoints
+    xforms, vel, bias = [None] * nj, [ca.SX.zeros(6)] * nj, [None] * nj
+    for jt in joints:
+        i = jt.index
+        xforms[i] = _joint_transform(jt, q)
+        vJ = _motion_subspace(jt) * v[jt.idx_v]
+        vel[i] = ca.mtimes(xforms[i], vel[jt.parent]) + vJ
+        bias[i] = _cross_motion(vel[i], vJ)
+    return xforms, vel, bias
+
+
 def _rnea_expr(model: pin.Model, joints: list[_Joint], q, v, a):
     """RNEA (Featherstone, Table 5.1) as an SX expression.
 
@@ -238,17 +252,12 @@ def _rnea_expr(model: pin.Model, joints: list[_Joint], q, v, a):
     ``f_p += X_i^T f_i``. Finally ``tau += armature * a``.
     """
     nj = model.njoints
-    vel = [ca.SX.zeros(6)] * nj
+    xforms, vel, bias = _velocity_pass(model, joints, q, v)
     acc = [ca.SX(_gravity_acceleration(model))] + [None] * (nj - 1)
     force = [None] * nj
-    xforms = [None] * nj
     for jt in joints:
         i, S = jt.index, _motion_subspace(jt)
-        X = _joint_transform(jt, q)
-        xforms[i] = X
-        vJ = S * v[jt.idx_v]
-        vel[i] = ca.mtimes(X, vel[jt.parent]) + vJ
-        acc[i] = ca.mtimes(X, acc[jt.parent]) + S * a[jt.idx_v] + _cross_motion(vel[i], vJ)
+        acc[i] = ca.mtimes(xforms[i], acc[jt.parent]) + S * a[jt.idx_v] + bias[i]
         inertia = _dm(jt.inertia)
         force[i] = ca.mtimes(inertia, acc[i]) + _cross_force(vel[i], ca.mtimes(inertia, vel[i]))
     tau = [None] * model.nv
@@ -277,18 +286,11 @@ def _aba_expr(model: pin.Model, joints: list[_Joint], q, v, tau):
     """
     nj = model.njoints
     armature = np.asarray(model.armature, dtype=float)
-    vel = [ca.SX.zeros(6)] * nj
-    bias = [None] * nj
+    xforms, vel, bias = _velocity_pass(model, joints, q, v)
     art_inertia = [None] * nj
     art_force = [None] * nj
-    xforms = [None] * nj
     for jt in joints:
-        i, S = jt.index, _motion_subspace(jt)
-        X = _joint_transform(jt, q)
-        xforms[i] = X
-        vJ = S * v[jt.idx_v]
-        vel[i] = ca.mtimes(X, vel[jt.parent]) + vJ
-        bias[i] = _cross_motion(vel[i], vJ)
+        i = jt.index
         inertia = _dm(jt.inertia)
         art_inertia[i] = ca.SX(inertia)
         art_force[i] = _cross_force(vel[i], ca.mtimes(inertia, vel[i]))
