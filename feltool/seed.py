@@ -1,0 +1,495 @@
+"""Running one seed: the learning cycles of an :class:`~feltool.experiment.Experiment`.
+
+:func:`run_seed` loops over cycles; each cycle is run by the cycle runner of the experiment's
+backend and update mode (per-cycle Python loop, per-step, compiled, walkers' hybrid loop, model
+learning), which returns a :class:`CycleOutcome`; the loop turns outcomes into metric rows,
+checkpoints, and the seed's summary.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from feltool.checkpoint import Checkpointer, Interrupted, stop_requested
+from feltool.control import wrap
+from feltool.dynamics import Dynamics, make_dynamics
+from feltool.events import changed_model, plant_for_cycle
+from feltool.fel import feedforward
+from feltool.simulate import ClosedLoop, CycleLog
+
+if TYPE_CHECKING:
+    from feltool.experiment import Experiment
+
+
+@dataclass
+class SeedResult:
+    """One seed's outcome: metric rows, summary entry, learned parameters and traces."""
+
+    seed: int
+    rows: list[dict[str, float]]
+    summary: dict[str, Any]
+    params: dict[str, np.ndarray]
+    traces: dict[str, np.ndarray]
+
+
+@dataclass
+class CycleOutcome:
+    """What the learner and the metrics need from one cycle, whichever backend ran it.
+
+    Attributes:
+        theta_next: Parameters after the cycle's update.
+        q_end, v_end: Robot state after the cycle.
+        fb_abs_mean: Mean |u_fb| per joint over the cycle [N m].
+        fb_stabilized: Sum over stabilizing controllers of their mean |output| [N m].
+        fb_error: Sum over joints of the mean |error signal| [N m].
+        track_err_rms: RMS of forward minus system angle per joint [rad].
+        max_error: Largest |reference - controlled quantity| over the cycle [rad].
+        max_speed: Largest |joint velocity| over the cycle [rad/s].
+        finite: Whether every state stayed finite.
+        trace: Returns ``(CycleLog, Qd)`` of the cycle (computed on demand).
+        fall: Why a walker fell during the cycle (hybrid loop), or None.
+        impacts: ``(step, by_guard, swing-foot x [m])`` of each impact (walkers).
+        theta_m_next: The inverse-model correction after the cycle (``learning.model``), else
+            None.
+    """
+
+    theta_next: np.ndarray
+    q_end: np.ndarray
+    v_end: np.ndarray
+    fb_abs_mean: np.ndarray
+    track_err_rms: np.ndarray
+    max_error: float
+    max_speed: float
+    finite: bool
+    trace: Callable[[], tuple[CycleLog, np.ndarray]]
+    fb_stabilized: float = 0.0
+    fb_error: float = 0.0
+    fall: str | None = None
+    impacts: list = field(default_factory=list)
+    theta_m_next: np.ndarray | None = None
+    limit_hits: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
+             progress: Callable[[int, float], None] | None = None,
+             checkpoint: Checkpointer | None = None,
+             on_cycle: Callable[[int, CycleLog, np.ndarray, float], None] | None = None
+             ) -> SeedResult:
+    """Run one seed's learning and return its metrics (see the run directory's metrics.csv).
+
+    Args:
+        progress: Called after every cycle with (cycle, mean |error feedback| [N m]).
+        checkpoint: The seed continues from its last checkpoint (bit-identically), saves one
+            every ``checkpoint.every`` cycles, and on a stop request saves and raises
+            :class:`~feltool.checkpoint.Interrupted`.
+        on_cycle: Called after every cycle with (cycle, log, Qd, fb): the cycle's simulated
+            states ``log.q`` (n_steps x nv, [rad]), its forward (desired) trajectory ``Qd``
+            (n_steps x nv, [rad]) and fb as for ``progress`` (the live viewer streams these).
+    """
+    cfg = exp.config
+    cycles = cycles or cfg.sim.cycles
+    theta = exp.initial_parameters(seed)
+    n = exp.primitives.n_steps
+    Qd, Vd, _ = exp.primitives.desired(theta)
+    q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    if exp.hybrid is not None:
+        q, v = exp.hybrid.initial_state(Qd, Vd)
+    rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
+    reason, start, wall_before = None, 1, 0.0
+    run_cycle = _cycle_runner(exp, theta)
+    model = exp.model_learner
+    theta_m = model.initial_parameters() if model else None
+    model_history = [theta_m]
+    saved = checkpoint.load() if checkpoint is not None else None
+    if saved is not None:
+        start = saved["cycle"] + 1
+        theta, q, v = saved["theta"], saved["q"], saved["v"]
+        rows, wall_before = saved["rows"], saved["wall_s"]
+        history = list(saved["history"])
+        traces = {k[len("trace_"):]: v for k, v in saved.items() if k.startswith("trace_")}
+        if "rmp_x" in saved:
+            _restore_rmp_states(run_cycle, saved)
+        if model is not None:
+            theta_m, model_history = saved["model_theta"], list(saved["model_history"])
+    t0 = time.perf_counter()
+    plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
+    nv = len(exp.joints)
+    hits = [np.zeros(nv, int), np.zeros(nv, int)]
+    checked = False
+    for cycle in range(start, cycles + 1):
+        if cycle > start:
+            plant = _plant_for_cycle(exp, cycle) or plant
+        out = run_cycle(theta, q, v, plant, theta_m)
+        for _, by_guard, _ in out.impacts:
+            impacts["guard" if by_guard else "clock"] += 1
+        if out.limit_hits is not None:
+            checked = True
+            hits[0] += out.limit_hits[0]
+            hits[1] += out.limit_hits[1]
+        reason = _divergence(exp, out)
+        if reason:
+            break
+        row = _metrics(exp, seed, cycle, out, theta)
+        if model is not None:
+            row["model_param_norm"] = float(np.linalg.norm(theta_m))
+            theta_m = out.theta_m_next
+            model_history.append(theta_m)
+        rows.append(row)
+        if cycle == 1:
+            traces.update(_trace("first", *out.trace()))
+        last = out
+        theta = out.theta_next
+        history.append(theta[exp.learner.learned].copy())
+        q, v = out.q_end, out.v_end
+        if progress is not None:
+            progress(cycle, row["fb_abs_mean_error"])
+        if on_cycle is not None:
+            on_cycle(cycle, *out.trace(), row["fb_abs_mean_error"])
+        if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
+            _save_checkpoint(checkpoint, cycle, theta, q, v, rows, history, traces,
+                             wall_before + time.perf_counter() - t0, run_cycle,
+                             (theta_m, model_history) if model is not None else None)
+            if stop_requested() and cycle < cycles:
+                raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
+    wall = wall_before + time.perf_counter() - t0
+    if last is not None:
+        traces.update(_trace("last", *last.trace()))
+    steps = n * (len(rows) + (1 if reason else 0))
+    if checkpoint is not None:
+        checkpoint.clear()
+    summary = _seed_summary(exp, seed, rows, reason, wall, steps)
+    summary["limits"] = ({"joint_limit_steps": {n: int(c) for n, c in zip(exp.joints, hits[0]) if c},
+                          "torque_limit_steps": {n: int(c) for n, c in zip(exp.joints, hits[1]) if c}}
+                         if checked else "not checked")
+    if exp.hybrid is not None and exp.hybrid.walker is not None:
+        summary["guard_impacts"], summary["clock_impacts"] = impacts["guard"], impacts["clock"]
+    if exp.hybrid is not None and rows and reason is None and cfg.walking is not None \
+            and cfg.walking.poincare:
+        from feltool.gait import poincare
+
+        summary["poincare"] = poincare(exp, theta, q, v, plant)
+    params = exp.split_parameters(theta)
+    hist = np.array(history)
+    for name in exp.learned_joints:
+        sl = exp.primitives.slices[exp.joints.index(name)]
+        cols = [c for c, p in enumerate(exp.learner.learned) if sl.start <= p < sl.stop]
+        params[f"{name}.weights_history"] = hist[:, cols[:-1]]
+        params[f"{name}.goal_history"] = hist[:, cols[-1]]
+    if model is not None:
+        params["model.theta"] = theta_m
+        params["model.theta_history"] = np.array(model_history)
+    return SeedResult(seed, rows, summary, params, traces)
+
+
+def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOutcome]:
+    """The function ``(theta, q, v, plant) -> CycleOutcome`` that runs one cycle for this
+    experiment's backend and update mode; ``plant`` is the simulated world (the known model, or
+    the one an event changed).
+
+    A per-step runner carries the RMP states from cycle to cycle in its ``rmp_states``.
+    """
+    if exp.config.backend == "compiled":
+        run = _compiled_runner(exp)
+        return lambda theta, q, v, plant, theta_m=None: run(theta, q, v)
+    if exp.hybrid is not None:
+        return lambda theta, q, v, plant, theta_m=None: _hybrid_cycle(exp, theta, q, v, plant)
+    loops: dict[int, ClosedLoop] = {}
+
+    def loop_for(plant: Dynamics) -> ClosedLoop:
+        if plant is exp.dynamics:
+            return exp.loop
+        if id(plant) not in loops:
+            loops.clear()
+            loops[id(plant)] = ClosedLoop(plant, exp.law, exp.loop.actuated, exp.loop.dt,
+                                          exp.loop.substeps, exp.loop.integrator,
+                                          exp.loop.error_rows, exp.loop.limits)
+        return loops[id(plant)]
+
+    if exp.model_learner is not None:
+        return lambda theta, q, v, plant, theta_m: _model_cycle(exp, theta, q, v, theta_m,
+                                                                loop_for(plant))
+    if exp.config.learning.step == "per_step":
+        states = _limit_cycle_states(exp, theta0)
+
+        def per_step(theta, q, v, plant, theta_m=None):
+            return _outcome(exp, *_per_step_cycle(exp, theta, q, v, states, loop_for(plant)))
+
+        per_step.rmp_states = states
+        return per_step
+    return lambda theta, q, v, plant, theta_m=None: _per_cycle(exp, theta, q, v, loop_for(plant))
+
+
+def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
+    """The simulated world from ``cycle`` on if an event starts then, else None."""
+    backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
+    return plant_for_cycle(exp.robot.model, exp.config.events, cycle, backend)
+
+
+def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
+    """The simulated world at cycle ``start`` (every event up to it applied; resumed runs)."""
+    events = [ev for ev in exp.config.events if ev.cycle <= start]
+    if not events:
+        return exp.dynamics
+    backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
+    return make_dynamics(changed_model(exp.robot.model, events), backend)
+
+
+def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history, traces,
+                     wall, run_cycle, model_state=None) -> None:
+    arrays = {"theta": theta, "q": q, "v": v, "history": np.array(history)}
+    if model_state is not None:
+        arrays["model_theta"], arrays["model_history"] = model_state[0], np.array(model_state[1])
+    arrays.update({f"trace_{k}": val for k, val in traces.items()})
+    states = getattr(run_cycle, "rmp_states", None)
+    if states is not None:
+        keys = sorted(states)
+        arrays["rmp_keys"] = np.array(keys)
+        arrays["rmp_x"] = np.array([states[k][0] for k in keys])
+        arrays["rmp_S"] = np.array([states[k][1] for k in keys])
+    checkpoint.save(cycle, arrays, {"rows": rows, "wall_s": wall})
+
+
+def _restore_rmp_states(run_cycle, saved: dict) -> None:
+    for key, x, S in zip(saved["rmp_keys"], saved["rmp_x"], saved["rmp_S"]):
+        run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
+
+
+def _feedforward(exp: Experiment, Qd, Vd, Ad) -> tuple[np.ndarray, list | None]:
+    """:math:`u_{ff}` along the desired trajectory, with the RNEA derivatives (from the same
+    pass) when the learner needs exact sensitivities."""
+    if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
+        u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+        return u_ff, derivs
+    return feedforward(exp.dynamics, Qd, Vd, Ad), None
+
+
+def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop) -> CycleOutcome:
+    """One cycle on the limit cycle of the current parameters, then one update (eq. 3.6)."""
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    u_ff, derivs = _feedforward(exp, Qd, Vd, Ad)
+    log = loop.run_cycle(q, v, R, Rd, u_ff)
+    theta_next = theta
+    if exp.learner.n_learned and np.all(np.isfinite(log.v)):
+        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_err)
+    return _outcome(exp, log, Qd, theta_next)
+
+
+def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> CycleOutcome:
+    """One cycle of the hybrid loop (walkers, allocated motors), then one update (eq. 3.6);
+    the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d."""
+    P, Pv, Pa = exp.primitives.desired(theta)
+    log = exp.hybrid.run_cycle(plant, q, v, P, Pv, Pa)
+    theta_next = theta
+    if log.fall is None and exp.learner.n_learned:
+        _, *derivs = exp.hybrid.jacobian_derivatives(log)
+        J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_err)
+    out = _outcome(exp, log, log.Qd, theta_next)
+    out.fall, out.impacts = log.fall, list(log.impacts)
+    return out
+
+
+def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
+                 loop: ClosedLoop) -> CycleOutcome:
+    """One cycle with the learned inverse-model correction in the feedforward, then both
+    updates: the trajectory's (eq. 3.6) and the model's (eq. 3.4)."""
+    model = exp.model_learner
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    u_ff, derivs = _feedforward(exp, Qd, Vd, Ad)
+    log, theta_m_next = model.run_cycle(loop, q, v, R, Rd, u_ff, (Qd, Vd, Ad), theta_m)
+    theta_next = theta
+    if exp.learner.n_learned and np.all(np.isfinite(log.v)):
+        dyn = exp.dynamics
+        if exp.config.learning.model.jacobian == "learned":
+            learned = model.learned_dynamics(theta_m)  # the model this cycle's u_ff came from
+            if learned is not None:
+                dyn = learned
+                if derivs is not None:
+                    derivs = learned.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
+        J = exp.learner.jacobian(dyn, theta, Qd, Vd, Ad, derivs)
+        theta_next = exp.learner.step(theta, J, log.u_err)
+    out = _outcome(exp, log, Qd, theta_next)
+    out.theta_m_next = theta_m_next
+    return out
+
+
+def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
+    R, _ = exp.law.references(Qd, Qd)
+    controlled = exp.law.tracking | exp.law.stabilizing
+    with np.errstate(all="ignore"):
+        err = np.abs(wrap(R - exp.law.quantity(log.q)))[:, controlled]
+        return CycleOutcome(
+            theta_next, log.q_end, log.v_end, np.abs(log.u_fb).mean(axis=0),
+            np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)),
+            float(err.max()) if err.size else 0.0, float(np.abs(log.v).max()),
+            bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
+                 and np.all(np.isfinite(log.q_end))),
+            lambda: (log, Qd),
+            float(np.abs(log.u_rows[:, exp.law.stabilizing]).mean(axis=0).sum()),
+            float(np.abs(log.u_err).mean(axis=0).sum()),
+            limit_hits=getattr(log, "limit_hits", None))
+
+
+def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
+    """Cycles from the compiled code, several per call: the outcomes of the cycles that follow
+    are kept and handed out while the loop continues from the very state they predicted (the
+    same arrays); a resumed or otherwise different state starts a new batch."""
+    compiled = exp.compiled_cycle()
+    nv, P = exp.robot.model.nv, exp.primitives.n_params
+    stab = np.flatnonzero(exp.law.stabilizing)
+    err_mask = exp.learner.error_mask
+    pending: list[tuple[tuple, CycleOutcome]] = []
+
+    def outcome(theta, x0, state, stat) -> CycleOutcome:
+        x_end = state[P:]
+        fb = stat[:nv]
+        max_speed = float(stat[2 * nv + 1])
+
+        def trace():
+            out = compiled.full(theta, x0)
+            X, U, Qd = out[7].T, out[8].T, out[9].T
+            return CycleLog(X[:, :nv], X[:, nv:], U, x_end[:nv], x_end[nv:], U,
+                            U * err_mask), Qd
+
+        return CycleOutcome(state[:P], x_end[:nv], x_end[nv:], fb, stat[nv:2 * nv],
+                            float(stat[2 * nv]), max_speed,
+                            bool(np.isfinite(state).all()) and max_speed == max_speed, trace,
+                            float(fb[stab].sum()), float(fb @ err_mask))
+
+    def run(theta, q, v) -> CycleOutcome:
+        if pending:
+            (t_exp, q_exp, v_exp), nxt = pending.pop(0)
+            if t_exp is theta and q_exp is q and v_exp is v:
+                return nxt
+        pending.clear()
+        x0 = np.concatenate([q, v])
+        states, stats = compiled.many(theta, x0)
+        outs, prev_theta, prev_x = [], theta, x0
+        for k in range(states.shape[1]):
+            outs.append(outcome(prev_theta, prev_x, states[:, k], stats[:, k]))
+            prev_theta, prev_x = outs[-1].theta_next, states[P:, k]
+        pending.extend(((a.theta_next, a.q_end, a.v_end), b) for a, b in zip(outs, outs[1:]))
+        return outs[0]
+
+    return run
+
+
+def _limit_cycle_states(exp: Experiment, theta: np.ndarray) -> dict[int, tuple]:
+    """Each RMP's state (q, qdot) and sensitivity at phase 0 of its limit cycle."""
+    return {i: (np.array([p.Xq[0] @ theta[exp.primitives.slices[i]],
+                          p.Xv[0] @ theta[exp.primitives.slices[i]]]),
+                np.stack([p.Xq[0], p.Xv[0]]))
+            for i, p in exp.primitives.primitives.items()}
+
+
+def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, tuple],
+                    loop: ClosedLoop | None = None):
+    """One cycle with an update after every step; the RMP states (updated in place in
+    ``states``) run on continuously, their sensitivities propagated alongside. ``loop``
+    simulates the world (default ``exp.loop``)."""
+    loop = loop or exp.loop
+    prims, n, nv = exp.primitives, exp.primitives.n_steps, exp.primitives.nv
+    learner, law, dyn = exp.learner, exp.law, exp.dynamics
+    theta = theta.copy()
+    Q, V, U, Urows, Uerr, Qd, Vd = (np.empty((n, nv)) for _ in range(7))
+    for k in range(n):
+        qd, vd, ad = np.empty(nv), np.empty(nv), np.empty(nv)
+        Sq, Sv, Sa = {}, {}, {}
+        for i, p in prims.primitives.items():
+            x, S = states[i]
+            th = theta[prims.slices[i]]
+            qd[i], vd[i], ad[i] = x[0], x[1], p.acceleration(x, th, k)
+            Sq[i], Sv[i], Sa[i] = S[0], S[1], p.acceleration_sensitivity(S, k)
+        Qd[k], Vd[k] = qd, vd
+        R, Rd = law.references(qd[None], vd[None])
+        u_fb, u_rows, u_err = law.terms(q, v, R[0], Rd[0], exp.loop.error_rows)
+        u_ff = dyn.inverse(qd, vd, ad)
+        Dq, Dv, M = dyn.inverse_derivatives(qd, vd, ad)
+        J = np.zeros((1, nv, learner.n_learned))
+        for i, cols, _, rows in learner._blocks:
+            sel = np.isin(rows, learner.learned)
+            J[0][:, cols] = (np.outer(Dq[:, i], Sq[i][sel]) + np.outer(Dv[:, i], Sv[i][sel])
+                             + np.outer(M[:, i], Sa[i][sel]))
+        Q[k], V[k], U[k], Urows[k], Uerr[k] = q, v, u_fb, u_rows, u_err
+        q, v = loop.advance(q, v, loop.actuated * (u_ff + u_fb))
+        for i, p in prims.primitives.items():
+            x, S = states[i]
+            th = theta[prims.slices[i]]
+            states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
+        theta = learner.step(theta, J, u_err[None])
+    return CycleLog(Q, V, U, q, v, Urows, Uerr), Qd, theta
+
+
+def _divergence(exp: Experiment, out: CycleOutcome) -> str | None:
+    sim = exp.config.sim
+    if out.fall:
+        return out.fall
+    if not out.finite:
+        return "the state became non-finite"
+    if out.max_speed > sim.max_velocity:
+        return (f"a joint velocity reached {out.max_speed:.3g} rad/s "
+                f"(sim.max_velocity = {sim.max_velocity})")
+    if out.max_error > sim.max_error_rad:
+        return (f"a controlled quantity was {out.max_error:.3g} rad from its reference "
+                f"(sim.max_error_rad = {sim.max_error_rad}): the robot fell")
+    return None
+
+
+def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
+             theta: np.ndarray) -> dict[str, float]:
+    fb, rms = out.fb_abs_mean, out.track_err_rms
+    row: dict[str, float] = {"seed": seed, "cycle": cycle}
+    for i, name in enumerate(exp.joints):
+        row[f"fb_abs_mean_{name}"] = float(fb[i])
+    row["fb_abs_mean_stabilized"] = out.fb_stabilized
+    row["fb_abs_mean_total"] = float(fb.sum())
+    row["fb_abs_mean_error"] = out.fb_error
+    for i, name in enumerate(exp.joints):
+        row[f"track_err_rms_{name}"] = float(rms[i])
+    row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
+    return row
+
+
+def _trace(which: str, log: CycleLog, Qd: np.ndarray) -> dict[str, np.ndarray]:
+    return {f"{which}_q_system": log.q, f"{which}_q_forward": Qd, f"{which}_u_fb": log.u_fb}
+
+
+def _seed_summary(exp: Experiment, seed: int, rows, reason: str | None,
+                  wall: float, steps: int) -> dict[str, Any]:
+    fb = [r["fb_abs_mean_error"] for r in rows]
+    fb0 = fb[0] if fb else None
+    converged = None
+    if fb:
+        threshold = 0.05 * fb0
+        above = [i for i, f in enumerate(fb) if f >= threshold]
+        last_above = above[-1] if above else -1
+        if last_above < len(fb) - 1:
+            converged = rows[last_above + 1]["cycle"]
+    out = {"seed": seed, "cycles": len(rows), "fb_initial": fb0, "fb_final": fb[-1] if fb else None,
+           "fb_ratio": (fb[-1] / fb0) if fb and fb0 else None, "converged_cycle": converged,
+           "wall_s": round(wall, 4), "steps_per_s": round(steps / wall, 1) if wall > 0 else None,
+           "diverged": reason is not None}
+    if reason:
+        out["diverged_reason"] = f"seed {seed}, cycle {len(rows) + 1}: {reason}"
+    return out
+
+
+def stabilization_errors(exp: Experiment, traces: dict[str, np.ndarray]) -> dict[str, float]:
+    """Max deviation of each stabilized quantity from its target over the last cycle, in [rad],
+    for the system (``<joint>_system``) and the forward trajectory (``<joint>_forward``)."""
+    out = {}
+    for i, name in enumerate(exp.joints):
+        if not exp.law.stabilizing[i]:
+            continue
+        for kind in ("system", "forward"):
+            y = exp.law.quantity(traces[f"last_q_{kind}"])[:, i]
+            out[f"{name}_{kind}"] = float(np.abs(wrap(y - exp.law.targets[i])).max())
+    return out
