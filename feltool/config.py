@@ -597,6 +597,18 @@ def parse_config(data: dict[str, Any], source: str | None = None) -> ExperimentC
     return cfg
 
 
-def config_to_yaml(cfg: ExperimentConfig) -> str:
-    """The fully resolved config (defaults filled in) as YAML."""
-    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
+def config_to_yaml(cfg: ExperimentConfig, base_dir: Path | None = None) -> str:
+    """The fully resolved config (defaults filled in) as YAML. With ``base_dir`` (the original
+    config's directory), relative file paths (a URDF, package dirs) become absolute, so that the
+    saved config works from anywhere (``feltool run RUN_DIR/config.yaml``, ``feltool view``)."""
+    data = cfg.model_dump(mode="json")
+    if base_dir is not None:
+        robot = data["robot"]
+        if (robot.endswith(".urdf") or "/" in robot) and not Path(robot).expanduser().is_absolute():
+            data["robot"] = str((Path(base_dir) / robot).resolve())
+        data["package_dirs"] = [str((Path(base_dir) / d).resolve()) for d in data["package_dirs"]]
+        plant = data.get("plant")
+        if isinstance(plant, dict) and isinstance(plant.get("robot"), str) and \
+                plant["robot"].endswith(".urdf") and not Path(plant["robot"]).is_absolute():
+            plant["robot"] = str((Path(base_dir) / plant["robot"]).resolve())
+    return yaml.safe_dump(data, sort_keys=False)

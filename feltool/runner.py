@@ -63,7 +63,8 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
     cycles = cycles or cfg.sim.cycles
     out_dir.mkdir(parents=True, exist_ok=True)
     if not (out_dir / "run.json").is_file():
-        atomic_write(out_dir / "config.yaml", config_to_yaml(cfg))
+        atomic_write(out_dir / "config.yaml",
+                     config_to_yaml(cfg, exp.source.parent if exp.source else None))
         write_json(out_dir / "run.json", {"source": str(exp.source) if exp.source else None,
                                           "raw": raw, "seeds": seeds, "cycles": cycles})
     finished = {s: r for s in seeds if (r := load_seed_result(out_dir, s)) is not None}

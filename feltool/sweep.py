@@ -92,7 +92,7 @@ def run_sweep(config: str | Path, grid: dict[str, list] | None, out_dir: Path,
             run_dir.mkdir(parents=True, exist_ok=True)
             from feltool.config import config_to_yaml
 
-            atomic_write(run_dir / "config.yaml", config_to_yaml(exp.config))
+            atomic_write(run_dir / "config.yaml", config_to_yaml(exp.config, source.parent))
         for seed in meta["seeds"]:
             if load_seed_result(run_dir, seed) is None:
                 tasks.append(Task(str(i), _point_raw(meta["raw"], point, meta["cycles"]),

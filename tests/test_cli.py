@@ -160,3 +160,17 @@ def test_diverging_seed_is_reported_and_keeps_its_metrics(tmp_path):
     rows = list(csv.DictReader(open(out / "metrics.csv")))
     assert len(rows) == seed["cycles"] >= 1
     assert [int(r["cycle"]) for r in rows] == list(range(1, len(rows) + 1))
+
+
+def test_saved_config_repeats_a_run_whose_urdf_is_relative(tmp_path):
+    """A config naming its URDF relative to itself: the run directory's config.yaml points at
+    the same file from anywhere."""
+    (tmp_path / "cfg").mkdir()
+    (tmp_path / "cfg" / "arm.urdf").write_text((CONFIGS.parent / "robots" / "two_link_arm.urdf").read_text())
+    text = open(STANDARD).read().replace("robot: two_link_arm", "robot: arm.urdf")
+    (tmp_path / "cfg" / "mine.yaml").write_text(text)
+    out = tmp_path / "elsewhere" / "run"
+    assert feltool("run", str(tmp_path / "cfg" / "mine.yaml"), "--seeds", "0", "--cycles", "2",
+                   "--out", str(out)).returncode == 0
+    res = feltool("check", str(out / "config.yaml"), cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
