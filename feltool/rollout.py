@@ -5,12 +5,13 @@ translucent ghost at the *forward* configuration (what the RMPs alone command), 
 Figs. A.2, A.3 and B.2 do:
 
 * :class:`LiveStream` is the ``on_cycle`` hook of :func:`feltool.experiment.run_seed`. Without
-  ``realtime`` it only keeps a reference to the newest cycle, and a background thread draws from
-  it at most ``max_fps`` times per second, the frame chosen by the wall clock, so the motion
-  plays at its true speed while learning runs at full speed (cost: one reference per cycle in the
-  learning loop; the drawing, in the other thread, takes at most ``DRAW_BUDGET`` of wall time,
-  fewer frames when the machine is loaded). With ``realtime`` every cycle is played in
-  full, paced to wall time, so learning runs at the robot's own pace.
+  ``realtime`` it hands the newest cycle to a drawing *process* (forked, with its own connection
+  to the same meshcat server) whenever that process has taken the previous one, and the process
+  draws at most ``max_fps`` frames per second, the frame chosen by the wall clock, so the motion
+  plays at its true speed while learning runs at full speed. A process, not a thread: a second
+  Python thread waking 30 times per second costs the learning loop ~9 % through the GIL alone;
+  the pipe costs a few microseconds per cycle. With ``realtime`` every cycle is played in full,
+  paced to wall time, so learning runs at the robot's own pace.
 * :func:`write_rollout_html` writes ``rollout.html`` into a run directory: the first and the last
   learning cycle of one seed, from ``traces/seed-N.npz``, as one self-contained page.
 * :func:`replay` plays recorded cycles of a run directory in the live viewer.
@@ -19,8 +20,9 @@ Figs. A.2, A.3 and B.2 do:
 from __future__ import annotations
 
 import json
+import multiprocessing as mp
+import os
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -37,6 +39,40 @@ CYCLES = ("first", "last")  # the cycles a run directory keeps traces of
 STATUS_EVERY_S = 1.0  # the terminal status line is printed at most this often [s]
 DRAW_BUDGET = 0.08  # at full speed, drawing (mostly waiting on the server) takes at most this
 # share of wall time: ~30 frames/s on an idle machine, fewer on a loaded one
+
+
+def _draw_process(viewer, conn, dt: float) -> None:
+    """Body of the drawing process: take the newest cycle when one arrives (and say so, which
+    lets the learner send the next), draw at most ``viewer.max_fps`` frames per second, the
+    frame chosen by the wall clock; stop at an empty message or when the learner is gone."""
+    frames, cpu0 = 0, time.process_time()
+    try:
+        viewer.detach_for_child()
+        period = 1.0 / viewer.max_fps if viewer.max_fps > 0 else 1.0 / 30.0
+        latest, start, next_frame = None, time.monotonic(), time.monotonic()
+        while True:
+            if conn.poll(max(0.0, next_frame - time.monotonic())):
+                data = conn.recv_bytes()
+                if not data:
+                    break
+                arr = np.frombuffer(data)
+                n, nq, nv = (int(x) for x in arr[:3])
+                latest = (arr[3:3 + n * nq].reshape(n, nq), arr[3 + n * nq:].reshape(n, nv))
+                conn.send_bytes(b"1")
+                continue
+            if latest is not None:
+                q, qf = latest
+                k = int((time.monotonic() - start) / dt) % len(q)
+                viewer.show(q[k], qf[k], force=True)
+                frames += 1
+            next_frame = time.monotonic() + period
+        conn.send_bytes(f"stats {frames} {time.process_time() - cpu0}".encode())
+    except (EOFError, BrokenPipeError, OSError, KeyboardInterrupt):
+        pass
+    except Exception as exc:  # pragma: no cover - shown, never fatal to learning
+        print(f"feltool viewer: drawing stopped: {exc}", file=sys.stderr, flush=True)
+    finally:
+        os._exit(0)  # skip the parent's atexit handlers: the parent owns the server
 
 
 class LiveStream:
@@ -63,27 +99,38 @@ class LiveStream:
         self.label = label
         self.out = out
         self.frames_drawn = 0
-        self.draw_cpu_s = 0.0  # CPU time the drawing thread has used [s]
-        self._latest: tuple[int, np.ndarray, np.ndarray, float] | None = None
+        self.draw_cpu_s = 0.0  # CPU time the drawing process has used [s] (known after close)
         self._last_status = -np.inf
-        self._stop = threading.Event()
-        self._error: BaseException | None = None
-        self._thread = None
+        self._conn = None
+        self._proc = None
+        self._credit = True  # the drawing process has taken the last cycle sent
         if not self.realtime:
-            self._thread = threading.Thread(target=self._draw_loop, name="feltool-viewer",
-                                            daemon=True)
-            self._thread.start()
+            ctx = mp.get_context("fork")
+            self._conn, child = ctx.Pipe(duplex=True)
+            self._proc = ctx.Process(target=_draw_process, args=(viewer, child, self.dt),
+                                     name="feltool-viewer", daemon=True)
+            self._proc.start()
+            child.close()
 
     # -- the on_cycle hook ---------------------------------------------------------------------
 
     def __call__(self, cycle: int, log, Qd: np.ndarray, fb: float) -> None:
-        if self._error is not None:
-            error, self._error = self._error, None
-            raise error
-        self._latest = (cycle, log.q, Qd, fb)  # one reference: the cost in the learning loop
         self._status(cycle, fb)
         if self.realtime:
             self.play(log.q, Qd)
+            return
+        try:
+            while not self._credit and self._conn.poll():
+                self._conn.recv_bytes()
+                self._credit = True
+            if self._credit:
+                q = np.ascontiguousarray(log.q, dtype=float)
+                qf = np.ascontiguousarray(Qd, dtype=float)
+                header = np.array([q.shape[0], q.shape[1], qf.shape[1]], dtype=float)
+                self._conn.send_bytes(np.concatenate([header, q.ravel(), qf.ravel()]).tobytes())
+                self._credit = False
+        except (BrokenPipeError, EOFError, OSError):
+            pass  # the drawing process is gone (its server stopped): learning goes on
 
     def play(self, q: np.ndarray, q_forward: np.ndarray | None = None) -> None:
         """Show one recorded cycle at wall-clock speed (at most ``max_fps`` frames per second)."""
@@ -100,27 +147,6 @@ class LiveStream:
                 self.viewer.show(q[k], None if q_forward is None else q_forward[k], force=True)
                 self.frames_drawn += 1
 
-    def _draw_loop(self) -> None:
-        period = 1.0 / self.viewer.max_fps if self.viewer.max_fps > 0 else 1.0 / 30.0
-        start = time.monotonic()
-        cpu0 = time.thread_time()
-        try:
-            while not self._stop.wait(period):
-                latest = self._latest
-                if latest is None:
-                    continue
-                _, q, qf, _ = latest
-                t = time.monotonic()
-                k = int((t - start) / self.dt) % len(q)
-                self.viewer.show(q[k], qf[k], force=True)
-                self.frames_drawn += 1
-                self.draw_cpu_s = time.thread_time() - cpu0
-                # fewer frames when drawing is slow (a loaded machine): learning comes first
-                took = time.monotonic() - t
-                period = max(1.0 / max(self.viewer.max_fps, 1e-9), took / DRAW_BUDGET)
-        except BaseException as exc:  # handed to the learning thread at its next cycle
-            self._error = exc
-
     def _status(self, cycle: int, fb: float) -> None:
         now = time.monotonic()
         last = self.cycles is not None and cycle >= self.cycles
@@ -136,10 +162,26 @@ class LiveStream:
     # -- lifetime ------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Stop the drawing thread (the viewer itself is closed by its owner)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
+        """Stop the drawing process (the viewer itself is closed by its owner)."""
+        if self._proc is None:
+            return
+        try:
+            self._conn.send_bytes(b"")
+            if self._conn.poll(5):
+                while True:  # the last message is the process's statistics
+                    data = self._conn.recv_bytes()
+                    if data.startswith(b"stats "):
+                        frames, cpu = data[6:].split()
+                        self.frames_drawn, self.draw_cpu_s = int(frames), float(cpu)
+                        break
+        except (BrokenPipeError, EOFError, OSError):
+            pass
+        self._proc.join(timeout=5)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(timeout=5)
+        self._conn.close()
+        self._proc = None
 
     def __enter__(self) -> LiveStream:
         return self

@@ -818,6 +818,15 @@ class LiveViewer:
                          daemon=True).start()
         return found["zmq_url"], found["web_url"]
 
+    def detach_for_child(self) -> None:
+        """In a forked child process: forget the parent's connection and server (never close
+        or kill them from here) and connect afresh to the same server."""
+        self._proc = None  # the parent owns the server
+        self._context = None  # a zmq context must not cross a fork; the child makes its own
+        self._socket = None
+        self._lock = threading.Lock()
+        self._connect()
+
     def _connect(self) -> None:
         zmq = self._zmq
         if self._context is None:
