@@ -104,7 +104,9 @@ class LiveStream:
         self._conn = None
         self._proc = None
         self._credit = True  # the drawing process has taken the last cycle sent
-        if not self.realtime:
+        self._inline = not self.realtime and "fork" not in mp.get_all_start_methods()
+        self._start = time.monotonic()
+        if not self.realtime and not self._inline:
             ctx = mp.get_context("fork")
             self._conn, child = ctx.Pipe(duplex=True)
             self._proc = ctx.Process(target=_draw_process, args=(viewer, child, self.dt),
@@ -118,6 +120,10 @@ class LiveStream:
         self._status(cycle, fb)
         if self.realtime:
             self.play(log.q, Qd)
+            return
+        if self._inline:  # no fork on this platform: draw here, throttled by the viewer
+            k = int((time.monotonic() - self._start) / self.dt) % len(log.q)
+            self.frames_drawn += bool(self.viewer.show(log.q[k], Qd[k]))
             return
         try:
             while not self._credit and self._conn.poll():
