@@ -111,16 +111,20 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         theta, q, v = saved["theta"], saved["q"], saved["v"]
         rows, wall_before = saved["rows"], saved["wall_s"]
         history = list(saved["history"])
-        traces = {k[len("trace_"):]: v for k, v in saved.items() if k.startswith("trace_")}
+        traces = {k[len("trace_"):]: val for k, val in saved.items() if k.startswith("trace_")}
         if "rmp_x" in saved:
             _restore_rmp_states(run_cycle, saved)
         if model is not None:
             theta_m, model_history = saved["model_theta"], list(saved["model_history"])
     t0 = time.perf_counter()
     plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
-    nv = len(exp.joints)
-    hits = [np.zeros(nv, int), np.zeros(nv, int)]
+    hits = [np.zeros(len(exp.joints), int), np.zeros(len(exp.joints), int)]
     checked = False
+    if saved is not None:  # counters of the cycles before the checkpoint
+        impacts.update(saved.get("impacts", {}))
+        if saved.get("limit_hits") is not None:
+            checked = True
+            hits = [np.array(h, int) for h in saved["limit_hits"]]
     for cycle in range(start, cycles + 1):
         if cycle > start:
             plant = _plant_for_cycle(exp, cycle) or plant
@@ -153,7 +157,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
             _save_checkpoint(checkpoint, cycle, theta, q, v, rows, history, traces,
                              wall_before + time.perf_counter() - t0, run_cycle,
-                             (theta_m, model_history) if model is not None else None)
+                             (theta_m, model_history) if model is not None else None,
+                             {"impacts": impacts,
+                              "limit_hits": [h.tolist() for h in hits] if checked else None})
             if stop_requested() and cycle < cycles:
                 raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
     wall = wall_before + time.perf_counter() - t0
@@ -163,8 +169,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     if checkpoint is not None:
         checkpoint.clear()
     summary = _seed_summary(exp, seed, rows, reason, wall, steps)
-    summary["limits"] = ({"joint_limit_steps": {n: int(c) for n, c in zip(exp.joints, hits[0]) if c},
-                          "torque_limit_steps": {n: int(c) for n, c in zip(exp.joints, hits[1]) if c}}
+    summary["limits"] = ({"joint_limit_steps": _nonzero(exp.joints, hits[0]),
+                          "torque_limit_steps": _nonzero(exp.joints, hits[1])}
                          if checked else "not checked")
     if exp.hybrid is not None and exp.hybrid.walker is not None:
         summary["guard_impacts"], summary["clock_impacts"] = impacts["guard"], impacts["clock"]
@@ -184,6 +190,10 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         params["model.theta"] = theta_m
         params["model.theta_history"] = np.array(model_history)
     return SeedResult(seed, rows, summary, params, traces)
+
+
+def _nonzero(names: list[str], counts: np.ndarray) -> dict[str, int]:
+    return {name: int(c) for name, c in zip(names, counts) if c}
 
 
 def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOutcome]:
@@ -240,7 +250,7 @@ def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
 
 
 def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history, traces,
-                     wall, run_cycle, model_state=None) -> None:
+                     wall, run_cycle, model_state=None, counters: dict | None = None) -> None:
     arrays = {"theta": theta, "q": q, "v": v, "history": np.array(history)}
     if model_state is not None:
         arrays["model_theta"], arrays["model_history"] = model_state[0], np.array(model_state[1])
@@ -251,7 +261,7 @@ def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history
         arrays["rmp_keys"] = np.array(keys)
         arrays["rmp_x"] = np.array([states[k][0] for k in keys])
         arrays["rmp_S"] = np.array([states[k][1] for k in keys])
-    checkpoint.save(cycle, arrays, {"rows": rows, "wall_s": wall})
+    checkpoint.save(cycle, arrays, {"rows": rows, "wall_s": wall, **(counters or {})})
 
 
 def _restore_rmp_states(run_cycle, saved: dict) -> None:

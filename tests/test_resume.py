@@ -3,6 +3,7 @@ an uninterrupted run."""
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -45,6 +46,12 @@ def test_sigterm_then_resume_is_bit_identical(tmp_path):
         for key in a:
             np.testing.assert_array_equal(a[key], b[key])
     assert not (cut / "checkpoints").exists()  # finished seeds leave no checkpoint
+
+    def counters(run):
+        return [(s["seed"], s["cycles"], s["converged_cycle"], s["limits"])
+                for s in json.loads((run / "summary.json").read_text())["seeds"]]
+
+    assert counters(cut) == counters(whole)
 
 
 def test_resume_of_a_finished_run_changes_nothing(tmp_path):
