@@ -327,6 +327,25 @@ class FallCheck(Strict):
                                    "when |angle| exceeds this, in [rad].")
 
 
+class FootPlacement(Strict):
+    """Step-to-step foot placement: the reference of one link angle (e.g. the swing leg's) is
+    offset by ``gain`` times another link's tracking error (e.g. the passive stance leg's
+    actual minus desired angle), blended in over each step by a smoothstep 3 s^2 - 2 s^3 of the
+    step's elapsed fraction s (zero at take-off, complete at the nominal landing). A stance leg
+    ahead of its schedule (a fast step) then lands the swing foot further ahead, one behind it
+    shorter; with gain -1 the landing is symmetric (swing angle = -stance angle at the impact),
+    whatever the stance leg did."""
+
+    angle_of: str = Field(description="Key of walking.absolute whose link angle (stance-relative "
+                          "labels) is offset, e.g. swing_hip for the swing leg.")
+    follow: str = Field(description="Key of walking.absolute whose link angle's tracking error "
+                        "(actual - desired, and its velocity) drives the offset, e.g. "
+                        "stance_ankle.")
+    gain: FiniteFloat = Field(description="Offset per unit error [-]; negative moves the swing "
+                              "foot ahead (against the stance leg's angle) when the stance leg "
+                              "is ahead of schedule.")
+
+
 class WalkingConfig(Strict):
     """Hybrid walking: a pinned stance foot, steps ending on a guard, stance/swing relabelling.
 
@@ -347,6 +366,9 @@ class WalkingConfig(Strict):
     steps_per_cycle: int = Field(2, ge=1, le=100, description="Steps (impacts) per cycle.")
     guard: Guard = Field(description="When a step ends.")
     fall: FallCheck | None = Field(None, description="When the walker has fallen.")
+    foot_placement: FootPlacement | None = Field(None, description="Offset a link's reference by "
+        "another link's tracking error over each step (step-to-step stabilisation, used with "
+        "impact: rigid); default off.")
     poincare: bool = Field(True, description="After learning, find the step-to-step map's fixed "
                            "point and its eigenvalues (summary.json: poincare).")
 

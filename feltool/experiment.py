@@ -464,10 +464,18 @@ def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
         foot = free.getFrameId(w.contact_frame)
     fall_row = (_joint_row(w.fall.link_angle, joints, "walking.fall.link_angle", src)
                 if w.fall else None)
+    placement = None
+    if w.foot_placement is not None:
+        fp = w.foot_placement
+        for key in ("angle_of", "follow"):
+            if getattr(fp, key) not in joints:
+                raise ConfigError([(f"walking.foot_placement.{key}", f"'{getattr(fp, key)}' is "
+                                    "not a key of walking.absolute")], src)
+        placement = (joints.index(fp.angle_of), joints.index(fp.follow), fp.gain)
     return Walker(A, Pi, _joint_row(w.guard.link_angle, joints, "walking.guard.link_angle", src),
                   w.guard.value, 1.0 if w.guard.direction == "rising" else -1.0,
                   tuple(w.guard.window), w.steps_per_cycle, w.impact, fall_row,
-                  w.fall.max_abs if w.fall else np.inf, free, foot)
+                  w.fall.max_abs if w.fall else np.inf, free, foot, placement)
 
 
 def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actuated: np.ndarray,

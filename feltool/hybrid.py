@@ -86,6 +86,8 @@ class Walker:
         fall_row, fall_max: fall when ``|fall_row @ q| > fall_max`` [rad].
         free_model: the model with a free planar base (x, z), for rigid impacts and foot positions.
         foot_frame: frame id of the swing foot in ``free_model`` (or None).
+        placement: ``(angle_index, follow_index, gain)`` of the foot-placement correction
+            (indices into the absolute angles), or None.
     """
 
     A: np.ndarray
@@ -100,6 +102,7 @@ class Walker:
     fall_max: float = np.inf
     free_model: pin.Model | None = None
     foot_frame: int | None = None
+    placement: tuple | None = None
 
     def __post_init__(self):
         self.A_inv = np.linalg.inv(self.A)
@@ -145,6 +148,21 @@ class Walker:
             sol = np.linalg.solve(K, np.concatenate([M @ ve, np.zeros(2)]))
             v = sol[2:n]
         return self.R @ q, self.R @ v
+
+    def placement_offset(self, q: np.ndarray, v: np.ndarray, qd: np.ndarray, vd: np.ndarray,
+                         elapsed: float, Ts: float) -> tuple[np.ndarray, np.ndarray]:
+        """Foot placement: offsets ``(dq, dv)`` of the desired joint state, ``elapsed`` [s] into a
+        step of nominal length ``Ts`` [s]. The absolute angle ``angle_index`` moves by
+        ``gain * e * r(s)``, with ``e`` the tracking error of absolute angle ``follow_index``
+        (actual - desired) and ``r(s) = 3 s^2 - 2 s^3``, ``s = elapsed / Ts`` in [0, 1]; the
+        velocity offset is its time derivative (the desired acceleration is left unchanged)."""
+        i, j, gain = self.placement
+        s = min(max(elapsed / Ts, 0.0), 1.0)
+        e, ev = float(self.A[j] @ (q - qd)), float(self.A[j] @ (v - vd))
+        r = 3 * s**2 - 2 * s**3
+        rd = (6 * s - 6 * s**2) / Ts
+        col = self.A_inv[:, i]
+        return gain * e * r * col, gain * (ev * r + e * rd) * col
 
     def guard(self, q: np.ndarray) -> bool:
         return bool(self.guard_sign * (self.guard_row @ q - self.guard_value) >= 0.0)
@@ -228,10 +246,14 @@ class HybridLoop:
         h = self.dt / self.substeps
         semi = self.integrator == "semi_implicit_euler"
         Ts = n * self.dt / W.steps_per_cycle if W else None
+        k_step = 0  # first control step of the current step
         for k in range(n):
             if W:
                 G = W.G[stance]
                 qd, vd, ad = G @ P[k], G @ Pv[k], G @ Pa[k]
+                if W.placement is not None:
+                    dq, dv = W.placement_offset(q, v, qd, vd, (k - k_step) * self.dt, Ts)
+                    qd, vd = qd + dq, vd + dv
             else:
                 qd, vd, ad = P[k], Pv[k], Pa[k]
             Q[k], V[k], Qd[k], Vd[k], Ad[k], labels[k] = q, v, qd, vd, ad, stance
@@ -263,6 +285,7 @@ class HybridLoop:
                     impacts.append((k + 1, bool(by_guard), W.foot_x(q)))
                     q, v = W.apply_impact(q, v)
                     stance = 1 - stance
+                    k_step = k + 1
         return HybridLog(Q, V, U, q, v, Qd, Vd, Ad, labels, impacts, None, Urows, Uerr)
 
     def jacobian_derivatives(self, log: HybridLog) -> tuple:
