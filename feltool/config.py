@@ -299,6 +299,9 @@ class LearningConfig(Strict):
         "differentiation through the RMP and a symbolic RNEA.")
     fd_epsilon: PositiveFloat = Field(1.0e-6, description="Finite-difference step, relative "
                                       "to max(1, |theta_i|) [-].")
+    impact_window_s: NonNegFloat = Field(0.0, description="Walkers only: leave the error "
+        "signal's samples within this time after every impact out of the update (the impact's "
+        "velocity jump makes a feedback spike that no smooth RMP can remove) [s]; 0 = off.")
     model: ModelLearningConfig | None = Field(None, description="Also learn an inverse-model "
         "correction by classic FEL (docs/model_learning.md); default off.")
 

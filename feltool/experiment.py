@@ -350,6 +350,9 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
                       error_mask, limits)
     check_events(robot.model, cfg.events, src)
     hybrid = None
+    if L.impact_window_s > 0 and cfg.walking is None:
+        raise ConfigError([("learning.impact_window_s", "only for walkers (needs a walking "
+                                                        "block)")], src)
     if cfg.walking is not None or cfg.actuation is not None:
         if L.step == "per_step":
             raise ConfigError([("learning.step", "walking/actuation support only per_cycle "

@@ -300,10 +300,24 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
     if log.fall is None and exp.learner.n_learned:
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
         J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs)
-        theta_next = exp.learner.step(theta, J, log.u_err)
+        theta_next = exp.learner.step(theta, J, _impact_masked(exp, log))
     out = _outcome(exp, log, log.Qd, theta_next)
     out.fall, out.impacts = log.fall, list(log.impacts)
     return out
+
+
+def _impact_masked(exp: Experiment, log) -> np.ndarray:
+    """The cycle's error torques with the rows within ``learning.impact_window_s`` after each
+    impact zeroed (the learning signal only; the metrics keep every sample)."""
+    window = exp.config.learning.impact_window_s
+    if window <= 0 or not log.impacts:
+        return log.u_err
+    E = log.u_err.copy()
+    n = int(round(window / exp.config.dt))
+    for k, _, _ in log.impacts:  # k: first sample after the impact; the cycle's last impact
+        k %= len(E)              # starts the next cycle, whose first samples follow it
+        E[k:k + n] = 0.0
+    return E
 
 
 def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
