@@ -67,6 +67,17 @@ def check_supported(exp) -> None:
         raise ConfigError(problems, str(exp.source) if exp.source else None)
 
 
+def symbolic_desired(prims, theta):
+    """The RMPs' limit cycles :math:`q_d, \\dot q_d, \\ddot q_d = X\\theta` as CasADi
+    expressions, each ``nv x n`` (one column per sample)."""
+    rows = {name: [] for name in ("q", "v", "a")}
+    for i, prim in prims.primitives.items():
+        th = theta[prims.slices[i]]
+        for name, X in (("q", prim.Xq), ("v", prim.Xv), ("a", prim.Xa)):
+            rows[name].append(ca.mtimes(ca.DM(X), th).T)
+    return tuple(ca.vertcat(*rows[name]) for name in ("q", "v", "a"))
+
+
 def cycle_graph(exp, full: bool) -> ca.Function:
     """The symbolic cycle ``(theta, x0) -> outputs`` of an experiment.
 
@@ -85,13 +96,7 @@ def cycle_graph(exp, full: bool) -> ca.Function:
     x0 = ca.MX.sym("x0", 2 * nv)
 
     # 1. Limit cycles, transposed: one column per sample.
-    rows_q, rows_v, rows_a = [], [], []
-    for i, prim in prims.primitives.items():
-        th = theta[prims.slices[i]]
-        rows_q.append(ca.mtimes(ca.DM(prim.Xq), th).T)
-        rows_v.append(ca.mtimes(ca.DM(prim.Xv), th).T)
-        rows_a.append(ca.mtimes(ca.DM(prim.Xa), th).T)
-    Qd, Vd, Ad = ca.vertcat(*rows_q), ca.vertcat(*rows_v), ca.vertcat(*rows_a)
+    Qd, Vd, Ad = symbolic_desired(prims, theta)
 
     # 2. Feedforward and its Jacobian, one sample at a time, mapped over the cycle.
     Sq, Sv, Sa = (np.zeros((nv, P * n)) for _ in range(3))
@@ -272,12 +277,7 @@ def feedforward_jacobian(exp) -> ca.Function:
     model, prims, learner = exp.robot.model, exp.primitives, exp.learner
     n = prims.n_steps
     theta = ca.SX.sym("theta", prims.n_params)
-    rows = {name: [] for name in ("q", "v", "a")}
-    for i, prim in prims.primitives.items():
-        th = theta[prims.slices[i]]
-        for name, X in (("q", prim.Xq), ("v", prim.Xv), ("a", prim.Xa)):
-            rows[name].append(ca.mtimes(ca.DM(X), th).T)
-    Qd, Vd, Ad = (ca.vertcat(*rows[name]) for name in ("q", "v", "a"))
+    Qd, Vd, Ad = symbolic_desired(prims, theta)
     U_ff = symbolic_rnea(model).map(n, "serial")(Qd, Vd, Ad)  # nv x n
     learned = theta[learner.learned.tolist()]
     jac = ca.jacobian(ca.vec(U_ff), learned)  # column-major: sample-major rows
