@@ -1,9 +1,11 @@
 r"""A planar walker: the robot on a sagittal floating base, its feet, and the left/right relabelling.
 
 Any planar walker URDF becomes a walker here. Its root link gets a sagittal-plane floating base,
-three coordinates :math:`(x, z, \vartheta)` in [m, m, rad] (prismatic along the world's x and z,
-then a rotation about the world's y: Pinocchio's composite joint ``PX * PZ * RY``), unless the
-URDF already has its own base joints. Each foot is a point contact: a frame of the URDF, or a
+three coordinates :math:`(x, z, \vartheta)` in [m, m, rad]: the one-DoF joints ``base_x``
+(prismatic along the world's x), ``base_z`` (along z) and ``base_pitch`` (a rotation about y), in
+that order, carrying massless bodies, unless the URDF already has its own base joints. (Three
+plain joints rather than one composite joint, so that every backend, the CasADi one included,
+handles them and each coordinate has a name.) Each foot is a point contact: a frame of the URDF, or a
 link and an offset in that link's frame in [m], added to the model as a frame. The ground is the
 plane :math:`z = 0` (a slope tilts gravity instead, so the ground stays at z = 0).
 
@@ -23,7 +25,7 @@ import pinocchio as pin
 from feltool.errors import RobotError
 from feltool.robot import Robot
 
-BASE_JOINT = "walker_base"  # name of the (x, z, pitch) base joint feltool adds
+BASE_JOINTS = ("base_x", "base_z", "base_pitch")  # the (x, z, pitch) base feltool adds
 
 
 @dataclass(frozen=True)
@@ -35,27 +37,25 @@ class FootSpec:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-def planar_base_joint() -> pin.JointModel:
-    """The sagittal floating base: x, z translation in [m], then pitch about y in [rad]."""
-    joint = pin.JointModelComposite(3)
-    joint.addJoint(pin.JointModelPX())
-    joint.addJoint(pin.JointModelPZ())
-    joint.addJoint(pin.JointModelRY())
-    return joint
-
-
 def with_planar_base(robot: Robot) -> Robot:
-    """A copy of ``robot`` whose root link sits on the (x, z, pitch) base joint ``walker_base``.
+    """A copy of ``robot`` whose root link sits on the base joints ``base_x``, ``base_z``,
+    ``base_pitch`` (q[0:3], v[0:3]: x, z in [m], pitch in [rad]; unactuated, unbounded).
 
-    Gravity and the source are kept; the base is the model's first joint (q[0:3], v[0:3]).
+    Gravity, limits and the source are kept.
     """
-    if robot.urdf_path is None:
-        raise RobotError(f"robot '{robot.name}': a planar base needs the URDF file")
-    try:
-        model = pin.buildModelFromXML(robot.urdf_path.read_text(), planar_base_joint(), BASE_JOINT)
-    except Exception as exc:
-        raise RobotError(f"{robot.urdf_path}: Pinocchio could not add a planar base: {exc}") from None
+    base = pin.Model()
+    parent = 0
+    joints = (pin.JointModelPX(), pin.JointModelPZ(), pin.JointModelRY())
+    for name, joint in zip(BASE_JOINTS, joints):
+        parent = base.addJoint(parent, joint, pin.SE3.Identity(), name)
+        base.appendBodyToJoint(parent, pin.Inertia.Zero(), pin.SE3.Identity())
+    mount = base.addFrame(pin.Frame("base_mount", parent, 0, pin.SE3.Identity(),
+                                    pin.FrameType.OP_FRAME))
+    model = pin.appendModel(base, robot.model, mount, pin.SE3.Identity())
     model.gravity = robot.model.gravity
+    model.effortLimit[:3] = 0.0
+    model.lowerPositionLimit[:3] = -np.inf
+    model.upperPositionLimit[:3] = np.inf
     return Robot(name=robot.name, model=model, source=robot.source, urdf_path=robot.urdf_path,
                  package_dirs=list(robot.package_dirs))
 
@@ -65,18 +65,21 @@ class WalkerModel:
     """A planar walker's model, feet and relabelling.
 
     Attributes:
-        robot: The robot with its floating base (``model.nq == model.nv``: planar, no quaternion).
-        base: Names of the base's joints (``[walker_base]`` when feltool added it).
+        robot: The robot with its floating base.
+        base: Names of the base's joints (``base_x, base_z, base_pitch`` when feltool added them).
         feet: Foot name (e.g. ``left``, ``right``) -> Pinocchio frame id of its contact point.
         legs: Pairs of joint names exchanged at each touchdown.
-        swap: ``(nv,)`` index permutation that relabels q and v (the same permutation: nq == nv).
+        swap_q: ``(nq,)`` index permutation that relabels q (a continuous joint's cos/sin pair
+            moves as a whole).
+        swap_v: ``(nv,)`` index permutation that relabels v (and torques).
     """
 
     robot: Robot
     base: list[str]
     feet: dict[str, int]
     legs: list[tuple[str, str]]
-    swap: np.ndarray
+    swap_q: np.ndarray
+    swap_v: np.ndarray
 
     @property
     def model(self) -> pin.Model:
@@ -95,7 +98,7 @@ class WalkerModel:
 
     def relabel(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exchange the legs' coordinates (q and v), so the new stance leg has the old one's name."""
-        return q[self.swap], v[self.swap]
+        return q[self.swap_q], v[self.swap_v]
 
 
 def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple[str, str]],
@@ -114,24 +117,26 @@ def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple
     """
     if base == "planar":
         robot = with_planar_base(robot)
-        base_names = [BASE_JOINT]
+        base_names = list(BASE_JOINTS)
     else:
         base_names = list(base)
         for name in base_names:
             robot.joint_id(name)
     model = robot.model
-    if model.nq != model.nv:
-        raise RobotError(f"robot '{robot.name}': a planar walker needs nq == nv (no quaternion "
-                         f"joints); it has nq = {model.nq}, nv = {model.nv}")
     frame_ids: dict[str, int] = {}
     for foot, spec in feet.items():
         frame_ids[foot] = _contact_frame(model, robot.name, foot, spec)
-    swap = np.arange(model.nv)
+    swap_q, swap_v = np.arange(model.nq), np.arange(model.nv)
     for a, b in legs:
-        ia, ib = robot.v_index(a), robot.v_index(b)
-        swap[ia], swap[ib] = ib, ia
+        ja, jb = (model.joints[robot.joint_id(n)] for n in (a, b))
+        if (ja.nq, ja.nv) != (jb.nq, jb.nv) or ja.nv != 1:
+            raise RobotError(f"robot '{robot.name}': legs pair [{a}, {b}]: both joints must be of "
+                             "one kind with one degree of freedom")
+        qa, qb = np.arange(ja.idx_q, ja.idx_q + ja.nq), np.arange(jb.idx_q, jb.idx_q + jb.nq)
+        swap_q[qa], swap_q[qb] = qb, qa
+        swap_v[ja.idx_v], swap_v[jb.idx_v] = jb.idx_v, ja.idx_v
     return WalkerModel(robot=robot, base=base_names, feet=frame_ids,
-                       legs=[(a, b) for a, b in legs], swap=swap)
+                       legs=[(a, b) for a, b in legs], swap_q=swap_q, swap_v=swap_v)
 
 
 def _contact_frame(model: pin.Model, robot_name: str, foot: str, spec: FootSpec) -> int:
