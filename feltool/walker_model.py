@@ -13,6 +13,13 @@ After each touchdown the new stance leg is called what the old one was: the pair
 exchange their joint coordinates (:meth:`WalkerModel.relabel`), so one step's description serves
 every step. The base coordinates are not relabelled (they are the root link's, shared by both
 legs).
+
+A walker whose root link is itself a leg (the compass gait: the root is one leg, the joint
+``hip`` at the root's origin carries the other) names the pair ``[base_pitch, hip]``: a *chained*
+pair, the second joint's parent being the first and both turning about the same axis at the same
+point. Exchanging the two legs is then the linear map
+:math:`\vartheta' = \vartheta + q_{hip},\; q_{hip}' = -q_{hip}` (and the same on the
+velocities), an involution like the plain exchange.
 """
 
 from __future__ import annotations
@@ -72,6 +79,8 @@ class WalkerModel:
         swap_q: ``(nq,)`` index permutation that relabels q (a continuous joint's cos/sin pair
             moves as a whole).
         swap_v: ``(nv,)`` index permutation that relabels v (and torques).
+        chained: Chained pairs ``(idx_q, idx_v)`` of the first and of the second joint, relabelled
+            after the permutation by ``first += second; second = -second``.
     """
 
     robot: Robot
@@ -80,6 +89,7 @@ class WalkerModel:
     legs: list[tuple[str, str]]
     swap_q: np.ndarray
     swap_v: np.ndarray
+    chained: tuple[tuple[int, int, int, int], ...] = ()
 
     @property
     def model(self) -> pin.Model:
@@ -98,7 +108,24 @@ class WalkerModel:
 
     def relabel(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exchange the legs' coordinates (q and v), so the new stance leg has the old one's name."""
-        return q[self.swap_q], v[self.swap_v]
+        q, v = q[self.swap_q], v[self.swap_v]
+        for iq_a, iq_b, iv_a, iv_b in self.chained:
+            q[iq_a] += q[iq_b]
+            q[iq_b] = -q[iq_b]
+            v[iv_a] += v[iv_b]
+            v[iv_b] = -v[iv_b]
+        return q, v
+
+    def relabel_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(R_q, R_v)`` with ``relabel(q, v) = (R_q q, R_v v)``, ``(nq, nq)`` and ``(nv, nv)``."""
+        R_q = np.eye(self.model.nq)[self.swap_q]
+        R_v = np.eye(self.model.nv)[self.swap_v]
+        for iq_a, iq_b, iv_a, iv_b in self.chained:
+            R_q[iq_a] += R_q[iq_b]
+            R_q[iq_b] *= -1.0
+            R_v[iv_a] += R_v[iv_b]
+            R_v[iv_b] *= -1.0
+        return R_q, R_v
 
 
 def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple[str, str]],
@@ -108,7 +135,8 @@ def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple
     Args:
         robot: The walker as loaded from its URDF (root link free of the world).
         feet: Foot name -> where it touches the ground.
-        legs: Pairs of one-DoF joints exchanged at touchdown (``[[left_hip, right_hip], ...]``).
+        legs: Pairs of one-DoF joints exchanged at touchdown (``[[left_hip, right_hip], ...]``),
+            or a chained pair ``[base_pitch, hip]`` of a walker whose root link is a leg.
         base: ``planar`` to add the (x, z, pitch) base above the root link, or the names of the
             URDF's own base joints (their coordinates are not relabelled).
 
@@ -127,16 +155,42 @@ def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple
     for foot, spec in feet.items():
         frame_ids[foot] = _contact_frame(model, robot.name, foot, spec)
     swap_q, swap_v = np.arange(model.nq), np.arange(model.nv)
+    chained = []
     for a, b in legs:
         ja, jb = (model.joints[robot.joint_id(n)] for n in (a, b))
         if (ja.nq, ja.nv) != (jb.nq, jb.nv) or ja.nv != 1:
             raise RobotError(f"robot '{robot.name}': legs pair [{a}, {b}]: both joints must be of "
                              "one kind with one degree of freedom")
+        if _is_chained(model, robot, a, b):
+            chained.append((ja.idx_q, jb.idx_q, ja.idx_v, jb.idx_v))
+            continue
         qa, qb = np.arange(ja.idx_q, ja.idx_q + ja.nq), np.arange(jb.idx_q, jb.idx_q + jb.nq)
         swap_q[qa], swap_q[qb] = qb, qa
         swap_v[ja.idx_v], swap_v[jb.idx_v] = jb.idx_v, ja.idx_v
     return WalkerModel(robot=robot, base=base_names, feet=frame_ids,
-                       legs=[(a, b) for a, b in legs], swap_q=swap_q, swap_v=swap_v)
+                       legs=[(a, b) for a, b in legs], swap_q=swap_q, swap_v=swap_v,
+                       chained=tuple(chained))
+
+
+def _is_chained(model: pin.Model, robot: Robot, a: str, b: str) -> bool:
+    """Whether joint ``b`` hangs from joint ``a``'s body, at its origin, turning about the same
+    axis (a root-leg walker's hip): then exchanging the legs is the chained relabelling.
+
+    Raises:
+        RobotError: when ``b`` hangs from ``a`` but not at its origin or not about its axis.
+    """
+    ia, ib = robot.joint_id(a), robot.joint_id(b)
+    if model.parents[ib] != ia:
+        return False
+    names = [model.joints[i].shortname() for i in (ia, ib)]
+    placement = model.jointPlacements[ib]
+    if (names[0] != names[1] or not names[0].startswith("JointModelR") or names[0].startswith(
+            "JointModelRUB") or not np.allclose(placement.translation, 0.0, atol=1e-12)
+            or not np.allclose(placement.rotation, np.eye(3), atol=1e-12)):
+        raise RobotError(f"robot '{robot.name}': legs pair [{a}, {b}]: '{b}' hangs from '{a}', so "
+                         f"the pair is chained (a root-leg walker), which needs '{b}' at the "
+                         f"origin of '{a}''s body, turning about the same axis")
+    return True
 
 
 def _contact_frame(model: pin.Model, robot_name: str, foot: str, spec: FootSpec) -> int:
