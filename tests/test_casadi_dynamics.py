@@ -13,6 +13,7 @@ import pytest
 from feltool.dynamics.casadi_backend import (
     CasadiDynamics,
     symbolic_aba,
+    symbolic_frame_kinematics,
     symbolic_rnea,
 )
 from feltool.errors import InputError
@@ -224,3 +225,25 @@ def test_pickles_for_process_pools():
     q, v, a = (np.linspace(-1.0, 1.0, 6) * k for k in (1.0, 0.5, 2.0))
     np.testing.assert_array_equal(clone.inverse(q, v, a), dyn.inverse(q, v, a))
     np.testing.assert_array_equal(clone.forward(q, v, a), dyn.forward(q, v, a))
+
+
+def test_frame_kinematics_match_pinocchio(robot):
+    """Every frame's position, Jacobian, velocity and classical acceleration against Pinocchio
+    (oMf, computeFrameJacobian and getFrameClassicalAcceleration, LOCAL_WORLD_ALIGNED), 1e-12."""
+    name, model, _, states = robot
+    data = model.createData()
+    frames = range(1, model.nframes, max(1, model.nframes // 6))
+    for fid in frames:
+        fn = symbolic_frame_kinematics(model, fid)
+        for q, v, a, _ in states[:4]:
+            p, J, dp, ddp = (np.array(x) for x in fn(q, v, a))
+            pin.forwardKinematics(model, data, q, v, a)
+            pin.updateFramePlacements(model, data)
+            J_pin = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
+            acc = pin.getFrameClassicalAcceleration(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+            vel = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+            frame = model.frames[fid].name
+            _assert_close(p.ravel(), data.oMf[fid].translation, 1e-12, f"{name} {frame} p")
+            _assert_close(J, J_pin, 1e-12, f"{name} {frame} J")
+            _assert_close(dp.ravel(), vel.linear, 1e-12, f"{name} {frame} dp")
+            _assert_close(ddp.ravel(), acc.linear, 1e-11, f"{name} {frame} ddp")

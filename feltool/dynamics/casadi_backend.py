@@ -396,6 +396,59 @@ def symbolic_rnea_derivatives(model: pin.Model) -> ca.Function:
     )
 
 
+def _placements_expr(model: pin.Model, joints: list[_Joint], q) -> list:
+    """World placements ``oMi = oMp * jointPlacement_i * M_J(q_i)`` of every joint frame, as
+    ``(R, p)`` pairs of SX (3x3 rotation, 3-vector position in [m]); index 0 is the world."""
+    placements = [(ca.SX(ca.DM.eye(3)), ca.SX.zeros(3))] + [None] * (model.njoints - 1)
+    for jt in joints:
+        R0, p0 = _dm(jt.placement_R), _dm(jt.placement_p)
+        qi = q[jt.idx_q]
+        if jt.kind == "prismatic":
+            R, p = ca.SX(R0), p0 + ca.mtimes(R0, _dm(jt.axis)) * qi
+        else:
+            if jt.kind == "revolute":
+                c, s = ca.cos(qi), ca.sin(qi)
+            else:
+                c, s = q[jt.idx_q], q[jt.idx_q + 1]
+            R, p = ca.mtimes(R0, _joint_rotation(jt, c, s)), ca.SX(p0)
+        R_parent, p_parent = placements[jt.parent]
+        placements[jt.index] = (ca.mtimes(R_parent, R), p_parent + ca.mtimes(R_parent, p))
+    return placements
+
+
+def _frame_position_expr(model: pin.Model, joints: list[_Joint], q, frame_id: int):
+    """Position in the world [m] of frame ``frame_id``'s origin (``oMf.translation``)."""
+    frame = model.frames[frame_id]
+    R, p = _placements_expr(model, joints, q)[frame.parentJoint]
+    return p + ca.mtimes(R, _dm(np.array(frame.placement.translation, dtype=float)))
+
+
+def symbolic_frame_kinematics(model: pin.Model, frame_id: int) -> ca.Function:
+    """``(q, v, a) -> (p, J, dp, ddp)``: a frame origin's motion in the world, symbolically.
+
+    ``p`` (3) is the position in [m] (Pinocchio's ``data.oMf[frame_id].translation``); ``J``
+    (3 x nv) the Jacobian of the origin's velocity, ``dp = J v`` in [m/s] (the linear rows of
+    ``pin.computeFrameJacobian(..., LOCAL_WORLD_ALIGNED)``); ``ddp = J a + (dJ/dt) v`` the
+    origin's classical acceleration in [m/s^2] (``pin.getFrameClassicalAcceleration``,
+    ``LOCAL_WORLD_ALIGNED``). ``J = (dp/dq) T(q)`` with ``T`` the tangent map of
+    ``integrate`` (identity except for continuous joints).
+    """
+    _check_has_joints(model)
+    if not 0 <= frame_id < model.nframes:
+        raise InputError(f"frame id {frame_id} is not a frame of the model (it has "
+                         f"{model.nframes})")
+    joints = _describe_joints(model)
+    q, v, a = _symbols(model, "a")
+    p = _frame_position_expr(model, joints, q, frame_id)
+    tangent = _tangent_jacobian(model, joints, q)
+    J = ca.mtimes(ca.jacobian(p, q), tangent)
+    dp = ca.mtimes(J, v)
+    ddp = ca.mtimes(J, a) + ca.mtimes(ca.jacobian(dp, q), ca.mtimes(tangent, v))
+    return ca.Function("frame_kinematics", [q, v, a],
+                       [ca.densify(p), ca.densify(J), ca.densify(dp), ca.densify(ddp)],
+                       ["q", "v", "a"], ["p", "J", "dp", "ddp"])
+
+
 # --------------------------------------------------------------------------------------------
 # The backend
 
@@ -506,6 +559,7 @@ class CasadiDynamics:
 __all__ = [
     "CasadiDynamics",
     "symbolic_aba",
+    "symbolic_frame_kinematics",
     "symbolic_rnea",
     "symbolic_rnea_derivatives",
 ]
