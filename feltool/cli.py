@@ -1,7 +1,9 @@
 """The ``feltool`` command.
 
-Exit codes: 0 success, 2 bad input (config, URDF, arguments), 1 anything else. Bad input prints
-what is wrong and where, never a traceback. (argparse rather than a CLI framework: its exit code
+Exit codes (:data:`EXIT_CODES`): 0 every seed learned as the config asks, 1 some seed diverged,
+fell or missed the config's ``success:`` criterion, 2 bad input (config, URDF, arguments, a run
+directory that is not this command's), 130 interrupted. Bad input prints what is wrong and
+where, never a traceback. (argparse rather than a CLI framework: its exit code
 2 for usage errors and its plain messages are exactly the contract.)
 """
 
@@ -9,8 +11,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
+import time
 from pathlib import Path
 
 from feltool import __version__
@@ -58,25 +62,43 @@ def _load(config: str, overrides: list[str]):
     return build_experiment(raw, source=path), raw
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    from feltool.runner import default_out_dir, resume_run, run_experiment
+def _progress(args: argparse.Namespace) -> tuple[bool, object]:
+    """(progress bar?, stream for progress lines or None): a bar on a terminal, else lines."""
+    if getattr(args, "quiet", False) or not args.progress:
+        return False, None
+    if sys.stderr.isatty():
+        return True, None
+    return False, sys.stderr
 
-    progress = args.progress and sys.stderr.isatty()
-    if args.resume is not None:
-        if args.config is not None:
-            raise InputError("give either CONFIG or --resume RUN_DIR, not both")
-        summary = resume_run(args.resume, args.workers, progress)
-        print_summary(summary, args.resume)
-        return 1 if summary["aggregate"]["n_diverged"] else 0
-    if args.config is None:
-        raise InputError("run needs a CONFIG (or --resume RUN_DIR)")
-    overrides = list(args.set or [])
-    if args.cycles is not None:
-        overrides.append(f"sim.cycles={args.cycles}")
-    if args.seeds is not None:
-        overrides.append(f"seeds={parse_seeds(args.seeds)}")
-    exp, raw = _load(args.config, overrides)
-    out_dir = args.out or default_out_dir(exp.config.name)
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from feltool.runner import default_out_dir, run_experiment, stored_experiment
+
+    bar, lines = _progress(args)
+    resume = args.resume is not None
+    if resume and args.resume is not True and args.out is not None \
+            and Path(args.resume) != args.out:
+        raise InputError(f"--resume {args.resume} and --out {args.out} name two directories")
+    if args.config is None and not resume:
+        raise InputError("run needs a CONFIG (or --resume RUN_DIR); see feltool run --help")
+    out_dir = args.out if args.resume in (None, True) else Path(args.resume)
+    if resume and out_dir is None:
+        raise InputError("--resume needs the run directory: --resume RUN_DIR (or --out RUN_DIR)")
+    if args.config is None:  # resume with the stored config
+        if args.set or args.seeds:
+            raise InputError("--set/--seeds change the config: give the CONFIG too, so the "
+                             "resume can check it is the same run")
+        exp, meta = stored_experiment(out_dir)
+        raw, seeds, cycles = meta["raw"], meta["seeds"], args.cycles or meta["cycles"]
+    else:
+        overrides = list(args.set or [])
+        if args.cycles is not None:
+            overrides.append(f"sim.cycles={args.cycles}")
+        if args.seeds is not None:
+            overrides.append(f"seeds={parse_seeds(args.seeds)}")
+        exp, raw = _load(args.config, overrides)
+        seeds, cycles = None, None
+        out_dir = out_dir or default_out_dir(exp.config.name)
     viewer = stream = None
     if args.view or args.zmq_url or args.realtime:
         from feltool.rollout import LiveStream
@@ -86,23 +108,55 @@ def cmd_run(args: argparse.Namespace) -> int:
         viewer = LiveViewer(exp.robot, zmq_url=args.zmq_url)
     try:
         if viewer is not None:
-            stream = LiveStream(viewer, exp.config.dt, exp.config.sim.cycles,
+            stream = LiveStream(viewer, exp.config.dt, cycles or exp.config.sim.cycles,
                                 realtime=args.realtime, label=f"seed {exp.config.seed_list[0]}")
-        summary = run_experiment(exp, raw, out_dir, workers=args.workers, show_progress=progress,
-                                 on_cycle=stream)
-    except Interrupted as exc:
-        raise Interrupted(f"{exc}; continue with: feltool run --resume {out_dir}") from None
+        try:
+            summary = run_experiment(exp, raw, out_dir, seeds, cycles, workers=args.workers,
+                                     show_progress=bar, on_cycle=stream, resume=resume,
+                                     progress_lines=lines)
+        except Interrupted as exc:
+            raise Interrupted(f"{exc}; continue with: feltool run --resume {out_dir}") from None
+        finally:
+            if stream is not None:
+                stream.close()
+        print_summary(summary, out_dir)
+        if args.html:
+            from feltool.rollout import write_rollout_html
+
+            print(f"  rollout: {write_rollout_html(exp.robot, out_dir)}")
+        if viewer is not None:  # the page stays up after the run: replay what it learned
+            _keep_viewing(viewer, out_dir, None, ["first", "last"], 0, args.view_timeout)
     finally:
-        if stream is not None:
-            stream.close()
         if viewer is not None:
             viewer.close()
-    print_summary(summary, out_dir)
-    if args.html:
-        from feltool.rollout import write_rollout_html
+    return run_exit_code(summary)
 
-        print(f"  rollout: {write_rollout_html(exp.robot, out_dir)}")
-    return 1 if summary["aggregate"]["n_diverged"] else 0
+
+def run_exit_code(summary: dict) -> int:
+    """0 every seed learned as the config asks, 1 some seed diverged, fell or missed it."""
+    agg = summary["aggregate"]
+    return 1 if agg["n_diverged"] or agg.get("n_failed") else 0
+
+
+def _keep_viewing(viewer, run_dir: Path, seed: int | None, cycles: list[str], loops: int,
+                  timeout_s: float | None) -> None:
+    """Replay recorded cycles ``loops`` times (0: for ever), then keep the server up showing
+    the last pose; until Ctrl-C or ``timeout_s`` in [s] (0: return at once). An interrupt here
+    loses nothing: the run is already written."""
+    from feltool.rollout import replay
+
+    if timeout_s is not None and timeout_s <= 0:
+        return
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    until = "Ctrl-C" if timeout_s is None else f"Ctrl-C or {timeout_s:g} s"
+    print(f"feltool viewer: serving {viewer.url} until {until}", flush=True)
+    try:
+        replay(viewer, run_dir, seed, cycles, loops=loops, timeout_s=timeout_s)
+        while deadline is None or time.monotonic() < deadline:
+            time.sleep(0.2 if deadline is None else min(0.2, deadline - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+    print("feltool viewer: stopped", flush=True)
 
 
 def _exit_on_sigterm() -> None:
@@ -115,21 +169,21 @@ def _exit_on_sigterm() -> None:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from feltool.rollout import load_rollouts, parse_cycles, replay, run_robot, write_rollout_html
+    from feltool.rollout import load_rollouts, parse_cycles, run_robot, write_rollout_html
 
     cycles = parse_cycles(args.cycles)
-    load_rollouts(args.run_dir, args.seed, cycles)  # bad input fails before a server starts
+    seed, _, _ = load_rollouts(args.run_dir, args.seed, cycles)  # bad input fails first
     robot = run_robot(args.run_dir)
     if args.html:
-        print(write_rollout_html(robot, args.run_dir, args.seed, cycles))
+        name = "rollout.html" if args.seed is None else f"rollout-seed{seed}.html"
+        print(write_rollout_html(robot, args.run_dir, seed, cycles,
+                                 path=args.run_dir / name))
         return 0
     from feltool.viewer import LiveViewer
 
     _exit_on_sigterm()
     with LiveViewer(robot, zmq_url=args.zmq_url) as viewer:
-        if args.loops == 0:
-            print("feltool viewer: replaying until interrupted (Ctrl-C)", flush=True)
-        replay(viewer, args.run_dir, args.seed, cycles, loops=args.loops)
+        _keep_viewing(viewer, args.run_dir, seed, cycles, args.loops, args.view_timeout)
     return 0
 
 
@@ -157,27 +211,33 @@ def print_summary(summary: dict, out_dir: Path) -> None:
     print(f"  converged (below 5 % of the initial feedback for good): {agg['n_converged']}/"
           f"{agg['n_seeds']} seeds" + (f", mean cycle {agg['converged_cycle_mean']:.1f}, "
                                         f"max {conv}" if conv is not None else ""))
-    print(f"  diverged: {agg['n_diverged']}   run directory: {out_dir}")
+    for s in summary["seeds"]:
+        if s.get("failed_reason") and not s["diverged"]:
+            print(f"  seed {s['seed']} did not learn as the config asks: {s['failed_reason']}")
+    learned = agg["n_seeds"] - agg.get("n_failed", agg["n_diverged"])
+    print(f"  learned as the config asks: {learned}/{agg['n_seeds']}   diverged: "
+          f"{agg['n_diverged']}   run directory: {out_dir}")
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from feltool.runner import default_out_dir
     from feltool.sweep import parse_grid, run_sweep
 
-    progress = args.progress and sys.stderr.isatty()
+    bar, lines = _progress(args)
     if args.resume is not None:
+        if args.config is not None or args.grid:
+            raise InputError("--resume continues a sweep as it was: give no CONFIG or --grid")
         out_dir, config, grid = args.resume, None, None
-        if not (out_dir / "sweep.json").is_file():
-            raise InputError(f"{out_dir}: no sweep.json, so not a sweep directory to resume")
     else:
         if args.config is None:
-            raise InputError("sweep needs a CONFIG (or --resume SWEEP_DIR)")
+            raise InputError("sweep needs a CONFIG (or --resume SWEEP_DIR); see feltool sweep "
+                             "--help")
         config, grid = args.config, parse_grid(args.grid or [])
         out_dir = args.out or default_out_dir(Path(config).stem + "-sweep")
     seeds = parse_seeds(args.seeds) if args.seeds else None
     try:
         rows = run_sweep(config, grid, out_dir, seeds, args.cycles, args.workers, args.scheduler,
-                         progress)
+                         bar, resume=args.resume is not None, progress_lines=lines)
     except Interrupted as exc:
         raise Interrupted(f"{exc}; continue with: feltool sweep --resume {out_dir}") from None
     points = len({r["point"] for r in rows})
@@ -185,7 +245,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     div = sum(bool(r["diverged"]) for r in rows)
     print(f"sweep: {points} points x {len(rows) // max(points, 1)} seeds; converged {conv}, "
           f"diverged {div}; {out_dir / 'sweep.csv'}")
-    return 0
+    bad = [r for r in rows if not r["learned"]]
+    for r in bad:
+        where = ", ".join(f"{k}={v}" for k, v in r.items() if k not in _ROW_FIELDS)
+        print(f"  point {r['point']} ({where}), seed {r['seed']}: {r['failed_reason']}")
+    return 1 if bad else 0
+
+
+_ROW_FIELDS = {"point", "seed", "fb_initial", "fb_final", "converged_cycle", "diverged", "learned",
+               "failed_reason"}
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -243,28 +311,63 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+EXIT_CODES = """exit codes:
+  0    every seed learned as the config asks (it did not diverge or fall, and met success:)
+  1    some seed diverged, fell or missed the config's success: criterion (results kept)
+  2    bad input: config, URDF, arguments, or a run directory that is not this command's
+  130  interrupted by Ctrl-C (143: SIGTERM); continue with --resume"""
+
+
+def _sub(sub, name: str, help: str, examples: str, exit_codes: bool = False):
+    epilog = "examples:\n" + examples + ("\n\n" + EXIT_CODES if exit_codes else "")
+    return sub.add_parser(name, help=help, description=help[0].upper() + help[1:] + ".",
+                          epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def _progress_options(p) -> None:
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="no progress bar (on a terminal) or progress lines (elsewhere)")
+    p.add_argument("--quiet", "-q", action="store_true", help="print only the summary")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="feltool", description="Feedback error learning of rhythmic movement primitives "
-        "on URDF robots.")
+        "on URDF robots.", epilog="examples:\n  feltool run two_link_standard\n"
+        "  feltool check configs/biped_torso.yaml\n  feltool inspect example-robot-data:ur5\n"
+        "\nfeltool COMMAND --help shows each command's options.\n\n" + EXIT_CODES,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"feltool {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("run", help="run an experiment over its seeds, write a run directory")
-    p.add_argument("config", nargs="?", help="experiment YAML, or the name of a bundled config")
-    p.add_argument("--resume", type=Path, metavar="RUN_DIR",
-                   help="continue an interrupted run where it stopped")
+    p = _sub(sub, "run", "run an experiment over its seeds, write a run directory",
+             "  feltool run configs/two_link_standard.yaml\n"
+             "  feltool run two_link_standard --seeds 0-4 --cycles 60 --set learning.update=gauss_newton\n"
+             "  feltool run two_link_standard --out runs/arm --view       # watch it in the browser\n"
+             "  feltool run --resume runs/arm                             # continue after Ctrl-C\n"
+             "  feltool run --resume runs/arm --cycles 300                # add cycles to a run",
+             exit_codes=True)
+    p.add_argument("config", nargs="?", help="experiment YAML, or the name of a bundled config "
+                   "(feltool robots lists robots; configs/ holds the bundled configs)")
+    p.add_argument("--resume", nargs="?", const=True, metavar="RUN_DIR",
+                   help="continue RUN_DIR (or --out) where it stopped; with CONFIG, only if it is "
+                   "the stored run's config and seeds; --cycles may add cycles")
     p.add_argument("--seeds", help="seeds to run, e.g. 0-19 or 0,3,7 (default: the config's)")
-    p.add_argument("--cycles", type=_positive_int, help="learning cycles per seed")
-    p.add_argument("--out", type=Path, help="run directory (default runs/<name>-<UTC time>)")
+    p.add_argument("--cycles", type=_positive_int, help="learning cycles per seed (default: "
+                   "the config's sim.cycles)")
+    p.add_argument("--out", type=Path, help="run directory; must be new or empty unless "
+                   "--resume (default runs/<name>-<UTC time>)")
     p.add_argument("--set", action="append", metavar="A.B.C=VALUE",
-                   help="override a config field (repeatable)")
+                   help="override a config field, VALUE read as YAML (repeatable)")
     p.add_argument("--workers", type=_positive_int, help="processes (default: all cores)")
-    p.add_argument("--no-progress", dest="progress", action="store_false",
-                   help="no progress bar")
+    _progress_options(p)
     p.add_argument("--view", action="store_true",
                    help="stream the first seed's rollout to a meshcat viewer in the browser "
-                   "(system robot and a ghost at the forward configuration)")
+                   "(system robot and a ghost at the forward configuration); after the run the "
+                   "page stays up, replaying the first and last cycle, until Ctrl-C")
+    p.add_argument("--view-timeout", type=float, metavar="S",
+                   help="with --view: close the viewer S seconds after the run ends "
+                   "(0: at once; default: on Ctrl-C)")
     p.add_argument("--zmq-url", metavar="URL",
                    help="use this running meshcat-server (implies --view; default: start one "
                    "on 127.0.0.1 and stop it at the end)")
@@ -276,47 +379,69 @@ def build_parser() -> argparse.ArgumentParser:
                    "run directory")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("sweep", help="run a grid of config overrides over seeds")
+    p = _sub(sub, "sweep", "run a grid of config overrides over seeds",
+             "  feltool sweep two_link_standard --grid learning.rates.weights=0.1,0.2 --seeds 0-9\n"
+             "  feltool sweep two_link_standard --grid learning.rates.weights=0.1,0.2 \\\n"
+             "      --grid joints.elbow.gains.kp=50,100 --scheduler tcp://10.0.0.5:8786\n"
+             "  feltool sweep --resume runs/two_link_standard-sweep-20261201T120000Z",
+             exit_codes=True)
     p.add_argument("config", nargs="?", help="experiment YAML, or the name of a bundled config")
     p.add_argument("--grid", action="append", metavar="A.B.C=V1,V2",
                    help="a swept field and its values (repeatable; the product is run)")
-    p.add_argument("--seeds", help="seeds per point, e.g. 0-9")
+    p.add_argument("--seeds", help="seeds per point, e.g. 0-9 (default: the config's)")
     p.add_argument("--cycles", type=_positive_int, help="learning cycles per seed")
-    p.add_argument("--out", type=Path, help="sweep directory (default runs/<name>-sweep-<time>)")
+    p.add_argument("--out", type=Path, help="sweep directory, new or empty (default "
+                   "runs/<name>-sweep-<UTC time>)")
     p.add_argument("--workers", type=_positive_int, help="local processes (default: all cores)")
     p.add_argument("--scheduler", metavar="tcp://HOST:8786",
                    help="run on a Dask cluster (default $FELTOOL_SCHEDULER, else locally)")
-    p.add_argument("--resume", type=Path, metavar="SWEEP_DIR", help="continue a sweep")
-    p.add_argument("--no-progress", dest="progress", action="store_false")
+    p.add_argument("--resume", type=Path, metavar="SWEEP_DIR",
+                   help="continue an interrupted sweep as it was")
+    _progress_options(p)
     p.set_defaults(func=cmd_sweep)
 
-    p = sub.add_parser("view", help="replay a recorded run in meshcat (or write rollout.html)")
-    p.add_argument("run_dir", type=Path)
+    p = _sub(sub, "view", "replay a recorded run in meshcat (or write rollout.html)",
+             "  feltool view runs/arm                       # until Ctrl-C\n"
+             "  feltool view runs/arm --seed 3 --cycles last --loops 2 --view-timeout 30\n"
+             "  feltool view runs/arm --html --seed 3       # runs/arm/rollout-seed3.html")
+    p.add_argument("run_dir", type=Path, help="a complete run directory")
     p.add_argument("--seed", type=int, help="seed to show (default: the first with traces)")
     p.add_argument("--cycles", default="first,last",
                    help="recorded cycles to show: first, last or first,last (default)")
     p.add_argument("--html", action="store_true",
-                   help="write RUN_DIR/rollout.html instead of starting a viewer")
+                   help="write RUN_DIR/rollout.html (rollout-seedN.html with --seed) instead of "
+                   "starting a viewer")
     p.add_argument("--zmq-url", metavar="URL", help="use this running meshcat-server")
     p.add_argument("--loops", type=int, default=0, metavar="N",
-                   help="play the cycles N times, then stop (default 0: until Ctrl-C)")
+                   help="play the cycles N times, then keep showing the last pose "
+                   "(default 0: play until Ctrl-C)")
+    p.add_argument("--view-timeout", type=float, metavar="S",
+                   help="close the viewer after S seconds (default: on Ctrl-C)")
     p.set_defaults(func=cmd_view)
 
-    p = sub.add_parser("check", help="validate a config without running it")
-    p.add_argument("config")
-    p.add_argument("--set", action="append", metavar="A.B.C=VALUE")
+    p = _sub(sub, "check", "validate a config without running it",
+             "  feltool check configs/two_link_human_arm.yaml\n"
+             "  feltool check two_link_standard --set sim.rate_hz=1000\n\n"
+             "exit code 0 when the config is valid, 2 with one line per problem otherwise")
+    p.add_argument("config", help="experiment YAML, or the name of a bundled config")
+    p.add_argument("--set", action="append", metavar="A.B.C=VALUE",
+                   help="override a config field before checking (repeatable)")
     p.set_defaults(func=cmd_check)
 
-    p = sub.add_parser("robots", help="list bundled and example-robot-data robots")
+    p = _sub(sub, "robots", "list bundled and example-robot-data robots",
+             "  feltool robots\n  feltool inspect $(feltool robots | sed -n 2p)")
     p.set_defaults(func=cmd_robots)
 
-    p = sub.add_parser("inspect", help="joints, links, masses of a robot")
+    p = _sub(sub, "inspect", "joints, links, masses of a robot, and a config skeleton",
+             "  feltool inspect two_link_arm\n  feltool inspect path/to/robot.urdf --json\n"
+             "  feltool inspect example-robot-data:ur5 | head")
     p.add_argument("robot", help="bundled name, URDF path or example-robot-data:NAME")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_inspect)
 
-    p = sub.add_parser("plot", help="(re)draw the figures of a run directory")
-    p.add_argument("run_dir", type=Path)
+    p = _sub(sub, "plot", "(re)draw the figures of a complete run directory",
+             "  feltool plot runs/arm\n  feltool plot runs/arm --seed 3")
+    p.add_argument("run_dir", type=Path, help="a complete run directory")
     p.add_argument("--seed", type=int, help="seed for the per-seed figures")
     p.set_defaults(func=cmd_plot)
     return parser
@@ -333,6 +458,19 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("feltool: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # e.g. feltool inspect ... | head: the reader has gone
+        _silence_stdout()
+        return 0
+
+
+def _silence_stdout() -> None:
+    """After a broken pipe, point stdout at /dev/null so that the interpreter's final flush
+    does not raise again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
 
 
 if __name__ == "__main__":

@@ -424,6 +424,17 @@ class SweepConfig(Strict):
                                        "[0.1, 0.2]}; the product of all is run.")
 
 
+class SuccessConfig(Strict):
+    """What counts as a seed that learned: ``feltool run`` exits 0 only when every seed does
+    (and 1, with every result kept, when some seed diverged, fell or missed this)."""
+
+    fb_ratio_max: PositiveFloat | None = Field(None, description="Largest allowed fb_final / "
+        "fb_initial (the error signal's mean |feedback| in the last cycle over the first); "
+        "default: no bound.")
+    converged: bool = Field(False, description="Require a converged_cycle (below 5 % of the "
+                            "initial feedback for good) by the last cycle.")
+
+
 class ExperimentConfig(Strict):
     """One FEL experiment: a robot, the roles of its joints, and how to learn."""
 
@@ -458,6 +469,9 @@ class ExperimentConfig(Strict):
     seeds: int | list[Annotated[int, Field(ge=0)]] = Field(20, description="Number of seeds "
                                                           "(0..n-1) or an explicit list.")
     sweep: SweepConfig | None = Field(None, description="Grid for feltool sweep.")
+    success: SuccessConfig = Field(default_factory=SuccessConfig, description="When a seed "
+                                   "counts as learned (the exit code); default: it did not "
+                                   "diverge.")
 
     @field_validator("gravity")
     @classmethod

@@ -265,14 +265,17 @@ def write_rollout_html(robot, run_dir: Path, seed: int | None = None,
 
 
 def replay(viewer, run_dir: Path, seed: int | None = None, cycles: Sequence[str] = CYCLES,
-           loops: int = 0, out=sys.stdout) -> int:
+           loops: int = 0, out=sys.stdout, timeout_s: float | None = None) -> int:
     """Play recorded cycles in the live viewer at wall-clock speed, ``loops`` times (0: until
-    interrupted). Returns the seed played."""
+    interrupted, or until ``timeout_s`` in [s] has passed). Returns the seed played."""
     seed, dt, clips = load_rollouts(run_dir, seed, cycles)
     stream = LiveStream(viewer, dt, realtime=True, out=None)
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
     done = 0
     while loops <= 0 or done < loops:
         for name, (q, qf) in clips.items():
+            if deadline is not None and time.monotonic() >= deadline:
+                return seed
             if out is not None:
                 print(f"view: seed {seed}, {name}", file=out, flush=True)
             stream.play(q, qf)

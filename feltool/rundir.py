@@ -31,12 +31,22 @@ def atomic_write(path: Path, data: bytes | str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # like any file a tool writes (mkstemp gives 0600)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data.encode() if isinstance(data, str) else data)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()  # read once (os.umask can only be read by setting it)
 
 
 def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -73,8 +83,12 @@ def write_json(path: Path, obj: Any) -> None:
 
 
 def check_run_dir(path: Path) -> Path:
-    """A run directory that exists and has a summary, else an :class:`InputError`."""
+    """A complete run directory (with a summary), else an :class:`InputError`: a run that is
+    still running, was interrupted or failed is never shown as a result."""
+    from feltool.runstate import require_complete
+
     path = Path(path)
+    require_complete(path)
     if not (path / "summary.json").is_file() or not (path / "metrics.csv").is_file():
         raise InputError(f"{path}: not a feltool run directory (no summary.json / metrics.csv)")
     return path

@@ -17,17 +17,18 @@ import signal
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
 from feltool import __version__
 from feltool.checkpoint import Interrupted, remove_empty, request_stop, reset_stop, stop_requested
-from feltool.config import config_to_yaml
+from feltool.config import apply_overrides, config_to_yaml
 from feltool.errors import InputError
 from feltool.executors import Task, inline, make_executor, run_task
 from feltool.experiment import Experiment, SeedResult, build_experiment, stabilization_errors
 from feltool.rundir import atomic_write, load_npz, save_npz, write_json, write_metrics
+from feltool.runstate import RunLock, read_meta, refuse_existing, set_state
 
 CHECKPOINT_EVERY = 10  # cycles
 
@@ -41,14 +42,20 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
                    cycles: int | None = None, workers: int | None = None,
                    show_progress: bool = True, figures: bool = True,
                    scheduler: str | None = None,
-                   on_cycle: Callable | None = None) -> dict[str, Any]:
+                   on_cycle: Callable | None = None, resume: bool = False,
+                   progress_lines: TextIO | None = None) -> dict[str, Any]:
     """Run every seed (in parallel on all cores, or on a Dask cluster), write the run
     directory, return the summary.
+
+    A run directory belongs to one command: ``out_dir`` must be new or empty, unless ``resume``
+    continues a run of the same config, seeds and (at least as many) cycles; more cycles than
+    before extend every finished seed from its final state. The directory is locked while the
+    run writes it, and ``run.json`` records its state (:mod:`feltool.runstate`).
 
     Args:
         exp: The built experiment (used in-process when one worker suffices).
         raw: The raw config mapping it was built from (workers rebuild the experiment from it).
-        out_dir: Run directory to create (or to continue, when it holds a ``run.json``).
+        out_dir: Run directory to create (or to continue, with ``resume``).
         seeds: Seeds to run; default the config's.
         cycles: Learning cycles per seed; default the config's.
         workers: Local processes; default all cores (at most one per seed).
@@ -56,28 +63,41 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
         on_cycle: Hook of :func:`~feltool.experiment.run_seed` for the first pending seed (the
             live viewer's stream); that seed then runs in this process, the others meanwhile in
             the pool.
+        resume: Continue ``out_dir`` (an :class:`InputError` if its inputs differ).
+        progress_lines: Without a progress bar, print a progress line per seed every few cycles
+            to this stream (e.g. ``sys.stderr`` when it is not a terminal).
+
+    Raises:
+        InputError: ``out_dir`` holds something and ``resume`` is false; the stored run differs
+            from the one asked for; another process is writing ``out_dir``.
     """
     cfg = exp.config
     out_dir = Path(out_dir)
     seeds = list(seeds if seeds is not None else cfg.seed_list)
     cycles = cycles or cfg.sim.cycles
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if not (out_dir / "run.json").is_file():
-        atomic_write(out_dir / "config.yaml",
-                     config_to_yaml(cfg, exp.source.parent if exp.source else None))
-        write_json(out_dir / "run.json", {"source": str(exp.source) if exp.source else None,
-                                          "raw": raw, "seeds": seeds, "cycles": cycles})
-    finished = {s: r for s in seeds if (r := load_seed_result(out_dir, s)) is not None}
-    tasks = [Task("run", raw, str(exp.source) if exp.source else None, s, cycles,
-                  str(out_dir / "checkpoints"), CHECKPOINT_EVERY)
-             for s in seeds if s not in finished]
-    results = dict(finished)
-    for task, result in execute(tasks, workers, scheduler, cfg.name,
-                                sum(cycles for _ in tasks), show_progress, on_cycle):
-        save_seed_result(exp, out_dir, result)
-        results[task.seed] = result
-    remove_empty(out_dir / "checkpoints")
-    summary = write_results(exp, out_dir, [results[s] for s in seeds])
+    if not resume:
+        refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")
+    with RunLock(out_dir):
+        if resume:
+            _check_resumable(out_dir, exp, seeds, cycles)
+        else:
+            refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")  # a race
+            atomic_write(out_dir / "config.yaml",
+                         config_to_yaml(cfg, exp.source.parent if exp.source else None))
+            write_json(out_dir / "run.json", {
+                "source": str(exp.source) if exp.source else None, "raw": raw, "seeds": seeds,
+                "cycles": cycles, "config_fingerprint": _fingerprint(exp)})
+        set_state(out_dir, "running", cycles=cycles)
+        try:
+            summary = _run_seeds(exp, raw, out_dir, seeds, cycles, workers, show_progress,
+                                 scheduler, on_cycle, progress_lines)
+        except Interrupted:
+            set_state(out_dir, "interrupted")
+            raise
+        except BaseException:
+            set_state(out_dir, "failed")
+            raise
+        set_state(out_dir, "complete", outcome=_outcome(summary))
     if figures:
         from feltool.plots import draw_figures
 
@@ -85,27 +105,116 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
     return summary
 
 
-def resume_run(run_dir: Path, workers: int | None = None, show_progress: bool = True,
-               scheduler: str | None = None) -> dict[str, Any]:
-    """Continue an interrupted run where it stopped."""
-    run_dir = Path(run_dir)
+def _run_seeds(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int], cycles: int,
+               workers, show_progress, scheduler, on_cycle, progress_lines) -> dict[str, Any]:
+    finished = {s: r for s in seeds if (r := load_seed_result(out_dir, s)) is not None
+                and not _needs_more_cycles(r, cycles)}
+    tasks = [Task("run", raw, str(exp.source) if exp.source else None, s, cycles,
+                  str(out_dir / "checkpoints"), CHECKPOINT_EVERY)
+             for s in seeds if s not in finished]
+    results = dict(finished)
+    for task, result in execute(tasks, workers, scheduler, exp.config.name,
+                                sum(cycles for _ in tasks), show_progress, on_cycle,
+                                progress_lines, cycles):
+        save_seed_result(exp, out_dir, result)
+        results[task.seed] = result
+    remove_empty(out_dir / "checkpoints")
+    return write_results(exp, out_dir, [results[s] for s in seeds])
+
+
+def _needs_more_cycles(result: SeedResult, cycles: int) -> bool:
+    """A finished seed that ran fewer cycles than now asked for (and did not stop early)."""
+    s = result.summary
+    return not s["diverged"] and s.get("cycles_planned", s["cycles"]) < cycles
+
+
+def _fingerprint(exp: Experiment) -> dict[str, Any]:
+    """The resolved config without what a resume may change (cycles) or checks apart (seeds)."""
+    dump = exp.config.model_dump(mode="json")
+    dump.pop("seeds", None)
+    dump.get("sim", {}).pop("cycles", None)
+    return json.loads(json.dumps(dump))
+
+
+def _differences(a: Any, b: Any, path: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [d for k in sorted(set(a) | set(b), key=str)
+                for d in _differences(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))]
+    return [] if a == b else [f"{path or '<config>'}: {a!r} -> {b!r}"]
+
+
+def _check_resumable(run_dir: Path, exp: Experiment, seeds: list[int], cycles: int) -> None:
+    """Refuse to continue ``run_dir`` with another config, other seeds or fewer cycles."""
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
         raise InputError(f"{run_dir}: no run.json, so not a feltool run directory to resume")
-    meta = json.loads(meta_path.read_text())
+    meta = read_meta(meta_path)  # no other process runs it: the caller holds its lock
+    stored = meta.get("config_fingerprint")
+    if stored is None:  # a directory from before fingerprints: rebuild its config
+        stored = _fingerprint(build_experiment(meta["raw"], Path(meta["source"])
+                                               if meta["source"] else None))
+    problems = _differences(stored, _fingerprint(exp))
+    if list(meta["seeds"]) != list(seeds):
+        problems.append(f"seeds: {_seed_text(meta['seeds'])} -> {_seed_text(seeds)}")
+    if cycles < meta["cycles"]:
+        problems.append(f"sim.cycles: {meta['cycles']} -> {cycles} (a resume may add cycles, "
+                        "not remove them)")
+    if problems:
+        raise InputError(f"--resume {run_dir}: the stored run differs from the one asked for; "
+                         "resume it as it is (feltool run --resume RUN_DIR) or start a new run:\n  "
+                         + "\n  ".join(problems[:12])
+                         + (f"\n  ... ({len(problems) - 12} more)" if len(problems) > 12 else ""))
+    if cycles != meta["cycles"]:  # more cycles: the stored config says so too
+        cfg = exp.config.model_copy(update={"sim": exp.config.sim.model_copy(
+            update={"cycles": cycles})})
+        atomic_write(run_dir / "config.yaml",
+                     config_to_yaml(cfg, exp.source.parent if exp.source else None))
+        meta["cycles"] = cycles
+        meta["raw"] = apply_overrides(meta["raw"], [f"sim.cycles={cycles}"])
+        write_json(meta_path, meta)
+
+
+def _seed_text(seeds: list[int]) -> str:
+    return str(seeds) if len(seeds) <= 8 else f"[{seeds[0]}, ..., {seeds[-1]}] ({len(seeds)})"
+
+
+def _outcome(summary: dict[str, Any]) -> dict[str, int]:
+    agg = summary["aggregate"]
+    return {"seeds": agg["n_seeds"], "diverged": agg["n_diverged"], "failed": agg["n_failed"]}
+
+
+def resume_run(run_dir: Path, workers: int | None = None, show_progress: bool = True,
+               scheduler: str | None = None, cycles: int | None = None,
+               on_cycle: Callable | None = None,
+               progress_lines: TextIO | None = None) -> dict[str, Any]:
+    """Continue an interrupted run where it stopped, with its own stored config (``cycles``
+    may extend it)."""
+    run_dir = Path(run_dir)
+    exp, meta = stored_experiment(run_dir)
+    return run_experiment(exp, meta["raw"], run_dir, meta["seeds"], cycles or meta["cycles"],
+                          workers, show_progress, scheduler=scheduler, on_cycle=on_cycle,
+                          resume=True, progress_lines=progress_lines)
+
+
+def stored_experiment(run_dir: Path) -> tuple[Experiment, dict[str, Any]]:
+    """The experiment a run directory was made with, and its ``run.json``."""
+    meta_path = Path(run_dir) / "run.json"
+    if not meta_path.is_file():
+        raise InputError(f"{run_dir}: no run.json, so not a feltool run directory to resume")
+    meta = read_meta(meta_path)
     source = Path(meta["source"]) if meta["source"] else None
-    exp = build_experiment(meta["raw"], source)
-    return run_experiment(exp, meta["raw"], run_dir, meta["seeds"], meta["cycles"], workers,
-                          show_progress, scheduler=scheduler)
+    return build_experiment(meta["raw"], source), meta
 
 
 def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name: str,
-            total_cycles: int, show_progress: bool, on_cycle: Callable | None = None):
+            total_cycles: int, show_progress: bool, on_cycle: Callable | None = None,
+            progress_lines: TextIO | None = None, cycles: int | None = None):
     """Run tasks inline, in a local pool or on Dask; yield ``(task, result)`` as they finish.
 
     With ``on_cycle``, the first task runs in this process with that hook while the others
     run in the pool. SIGINT/SIGTERM make running seeds checkpoint and stop; then
-    :class:`Interrupted` is raised.
+    :class:`Interrupted` is raised. Progress: a bar when ``show_progress``, else with
+    ``progress_lines`` one line per task every ``cycles / 10`` cycles (at least every 10).
     """
     if not tasks:
         return
@@ -115,12 +224,18 @@ def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name:
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(tasks))))
     bar = _progress_bar(total_cycles, name, show_progress)
     latest: dict[tuple, float] = {}
+    every = max(1, min(10, (cycles or 100) // 10))
 
     def on_progress(key, seed, cycle, fb) -> None:
         latest[(key, seed)] = fb
         if bar is not None:
             bar.update(1)
             bar.set_postfix(fb=f"{np.mean(list(latest.values())):.3g} N m", refresh=False)
+        elif progress_lines is not None and (cycle % every == 0 or cycle == cycles):
+            where = f"{name} " + (f"point {key} " if key != "run" else "")
+            of = f"/{cycles}" if cycles else ""
+            print(f"{where}seed {seed}: cycle {cycle}{of}, error feedback {fb:.4g} N m",
+                  file=progress_lines, flush=True)
 
     reset_stop()
     executor, manager, pump = None, None, None
@@ -256,6 +371,8 @@ def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult]) -> 
         entry = dict(r.summary)
         if r.traces and "stabilization_error_max_last_cycle_rad" not in entry:
             entry["stabilization_error_max_last_cycle_rad"] = stabilization_errors(exp, r.traces)
+        entry["failed_reason"] = success_failure(exp, entry)
+        entry["learned"] = entry["failed_reason"] is None
         seeds.append(entry)
     summary = {"config": exp.config.name, "feltool_version": __version__,
                "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
@@ -264,6 +381,20 @@ def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult]) -> 
                "seeds": seeds, "aggregate": aggregate(seeds)}
     write_json(out_dir / "summary.json", summary)
     return summary
+
+
+def success_failure(exp: Experiment, entry: dict[str, Any]) -> str | None:
+    """Why a finished seed did not learn as the config's ``success:`` asks, or None."""
+    if entry["diverged"]:
+        return entry.get("diverged_reason") or "diverged"
+    crit = exp.config.success
+    if crit.fb_ratio_max is not None and (entry["fb_ratio"] is None
+                                          or entry["fb_ratio"] > crit.fb_ratio_max):
+        ratio = "none" if entry["fb_ratio"] is None else f"{entry['fb_ratio']:.4g}"
+        return f"fb_final / fb_initial = {ratio} > success.fb_ratio_max = {crit.fb_ratio_max:g}"
+    if crit.converged and entry["converged_cycle"] is None:
+        return "never stayed below 5 % of the initial feedback (success.converged: true)"
+    return None
 
 
 def aggregate(seeds: list[dict[str, Any]]) -> dict[str, Any]:
@@ -275,6 +406,7 @@ def aggregate(seeds: list[dict[str, Any]]) -> dict[str, Any]:
     return {
         "n_seeds": len(seeds),
         "n_diverged": sum(bool(s["diverged"]) for s in seeds),
+        "n_failed": sum(not s.get("learned", not s["diverged"]) for s in seeds),
         "n_converged": sum(c is not None for c in conv),
         "converged_cycle_mean": float(np.mean(conv)) if conv and None not in conv else None,
         "converged_cycle_max": max(conv) if conv and None not in conv else None,

@@ -166,9 +166,17 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     if last is not None:
         traces.update(_trace("last", *last.trace()))
     steps = n * (len(rows) + (1 if reason else 0))
-    if checkpoint is not None:
-        checkpoint.clear()
+    if checkpoint is not None:  # the final state stays, so that a resume may add cycles
+        if reason is None and rows and rows[-1]["cycle"] % checkpoint.every:
+            _save_checkpoint(checkpoint, rows[-1]["cycle"], theta, q, v, rows, history, traces,
+                             wall, run_cycle,
+                             (theta_m, model_history) if model is not None else None,
+                             {"impacts": impacts,
+                              "limit_hits": [h.tolist() for h in hits] if checked else None})
+        elif reason is not None:
+            checkpoint.clear()
     summary = _seed_summary(exp, seed, rows, reason, wall, steps)
+    summary["cycles_planned"] = cycles
     summary["limits"] = ({"joint_limit_steps": _nonzero(exp.joints, hits[0]),
                           "torque_limit_steps": _nonzero(exp.joints, hits[1])}
                          if checked else "not checked")

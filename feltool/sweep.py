@@ -26,13 +26,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-from feltool.checkpoint import remove_empty
+from feltool.checkpoint import Interrupted, remove_empty
 from feltool.config import apply_overrides, read_yaml
 from feltool.errors import ConfigError, InputError
 from feltool.executors import Task
 from feltool.experiment import build_experiment, resolve_config_path
 from feltool.rundir import atomic_write, write_json
 from feltool.runner import CHECKPOINT_EVERY, execute, load_seed_result, save_seed_result, write_results
+from feltool.runstate import RunLock, refuse_existing, set_state
 
 
 def parse_grid(specs: list[str]) -> dict[str, list]:
@@ -53,35 +54,63 @@ def grid_points(grid: dict[str, list]) -> list[dict[str, Any]]:
     return [dict(zip(keys, combo)) for combo in itertools.product(*(grid[k] for k in keys))]
 
 
-def run_sweep(config: str | Path, grid: dict[str, list] | None, out_dir: Path,
+def run_sweep(config: str | Path | None, grid: dict[str, list] | None, out_dir: Path,
               seeds: list[int] | None = None, cycles: int | None = None,
               workers: int | None = None, scheduler: str | None = None,
-              show_progress: bool = True) -> list[dict[str, Any]]:
-    """Run (or continue) a sweep; returns the rows of sweep.csv."""
+              show_progress: bool = True, resume: bool = False,
+              progress_lines=None) -> list[dict[str, Any]]:
+    """Run a sweep into a new ``out_dir``, or continue one with ``resume``; returns the rows
+    of sweep.csv. Like a run directory, a sweep directory belongs to one command, is locked
+    while written, and ``sweep.json`` records its state (:mod:`feltool.runstate`)."""
     out_dir = Path(out_dir)
     meta_path = out_dir / "sweep.json"
-    if meta_path.is_file():
-        meta = json.loads(meta_path.read_text())
-    else:
-        source = resolve_config_path(config)
-        raw = read_yaml(source)
-        block = raw.pop("sweep", None) or {}
-        full_grid = dict(block.get("grid") or {})
-        full_grid.update(grid or {})
-        if not full_grid:
-            raise ConfigError([("sweep.grid", "a sweep needs a grid: --grid a.b=1,2 or a "
-                                              "sweep: {grid: {a.b: [1, 2]}} block")], str(source))
-        points = grid_points(full_grid)
-        # Validate every point before anything runs: a bad value fails fast, naming its point.
-        first = None
-        for i, point in enumerate(points):
-            exp = _build(raw, point, source, cycles, i)
-            first = first or exp
-        meta = {"source": str(source), "raw": raw, "grid": full_grid, "points": points,
-                "seeds": list(seeds if seeds is not None else first.config.seed_list),
-                "cycles": cycles or first.config.sim.cycles}
-        out_dir.mkdir(parents=True, exist_ok=True)
-        write_json(meta_path, meta)
+    hint = f"feltool sweep --resume {out_dir}"
+    if not resume:
+        refuse_existing(out_dir, "sweep.json", hint)
+        meta = _new_sweep(config, grid, seeds, cycles)  # bad input fails before any write
+    elif not meta_path.is_file():
+        raise InputError(f"{out_dir}: no sweep.json, so not a sweep directory to resume")
+    with RunLock(out_dir):
+        if not resume:
+            refuse_existing(out_dir, "sweep.json", hint)  # another process got here first
+            write_json(meta_path, meta)
+        set_state(out_dir, "running", "sweep.json")
+        try:
+            rows = _sweep_points(out_dir, workers, scheduler, show_progress, progress_lines)
+        except Interrupted:
+            set_state(out_dir, "interrupted", "sweep.json")
+            raise
+        except BaseException:
+            set_state(out_dir, "failed", "sweep.json")
+            raise
+        set_state(out_dir, "complete", "sweep.json")
+    return rows
+
+
+def _new_sweep(config, grid, seeds, cycles) -> dict[str, Any]:
+    """The ``sweep.json`` of a new sweep, every point validated first."""
+    source = resolve_config_path(config)
+    raw = read_yaml(source)
+    block = raw.pop("sweep", None) or {}
+    full_grid = dict(block.get("grid") or {})
+    full_grid.update(grid or {})
+    if not full_grid:
+        raise ConfigError([("sweep.grid", "a sweep needs a grid: --grid a.b=1,2 or a "
+                                          "sweep: {grid: {a.b: [1, 2]}} block")], str(source))
+    points = grid_points(full_grid)
+    # Validate every point before anything runs: a bad value fails fast, naming its point.
+    first = None
+    for i, point in enumerate(points):
+        exp = _build(raw, point, source, cycles, i)
+        first = first or exp
+    meta = {"source": str(source), "raw": raw, "grid": full_grid, "points": points,
+            "seeds": list(seeds if seeds is not None else first.config.seed_list),
+            "cycles": cycles or first.config.sim.cycles}
+    return meta
+
+
+def _sweep_points(out_dir: Path, workers, scheduler, show_progress, progress_lines):
+    meta = json.loads((out_dir / "sweep.json").read_text())
     source = Path(meta["source"])
     exps, tasks = [], []
     for i, point in enumerate(meta["points"]):
@@ -99,7 +128,8 @@ def run_sweep(config: str | Path, grid: dict[str, list] | None, out_dir: Path,
                                   str(source), seed, meta["cycles"],
                                   str(run_dir / "checkpoints"), CHECKPOINT_EVERY))
     for task, result in execute(tasks, workers, scheduler, "sweep",
-                                len(tasks) * meta["cycles"], show_progress):
+                                len(tasks) * meta["cycles"], show_progress,
+                                progress_lines=progress_lines, cycles=meta["cycles"]):
         i = int(task.key)
         save_seed_result(exps[i], out_dir / f"point-{i:03d}", result)
     rows = []
@@ -111,7 +141,8 @@ def run_sweep(config: str | Path, grid: dict[str, list] | None, out_dir: Path,
         for s in summary["seeds"]:
             rows.append({"point": i, **point, "seed": s["seed"], "fb_initial": s["fb_initial"],
                          "fb_final": s["fb_final"], "converged_cycle": s["converged_cycle"],
-                         "diverged": s["diverged"]})
+                         "diverged": s["diverged"], "learned": s["learned"],
+                         "failed_reason": s["failed_reason"] or ""})
     _write_csv(out_dir / "sweep.csv", rows)
     plot_sweep(out_dir, meta["grid"], rows)
     return rows
