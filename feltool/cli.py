@@ -311,6 +311,45 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_gait(args: argparse.Namespace) -> int:
+    """Design a walker's periodic gait (feltool/gait_design.py) and write it as RMP demos."""
+    from feltool.config import read_yaml
+    from feltool.experiment import resolve_config_path
+    from feltool.gait_config import gait_config, gait_spec, walker_from_raw, write_gait_config
+    from feltool.gait_design import design_gait
+
+    path = resolve_config_path(args.config)
+    raw = read_yaml(path)
+    walker, settings = walker_from_raw(raw, path)
+    spec = gait_spec(raw, walker, settings, speed=args.speed, step_length=args.step_length,
+                     slope=args.slope, passive=args.passive, knots=args.knots)
+    out = args.out or Path(f"{path.stem}-gait.yaml")
+
+    def progress(it: int, viol: float, cost: float) -> None:
+        if args.progress and it % 5 == 0:
+            print(f"  ipopt iteration {it:4d}  constraint violation {viol:9.3e}  cost "
+                  f"{cost:10.4e}", file=sys.stderr, flush=True)
+
+    gait = design_gait(walker, spec, progress)
+    config = gait_config(raw, walker, gait, spec, settings)
+    write_gait_config(out, config, gait, "feltool gait " + " ".join(sys.argv[2:]))
+    st, m = gait.stats, gait.metrics
+    print(f"{path.name}: gait designed in {st['solve_time_s']:.3g} s of solver time "
+          f"({st['iterations']} iterations, {st['knots']} knots; building {st['build_time_s']:.2g}"
+          " s)")
+    print(f"  period {m['period_s']:.4g} s   speed {m['speed_m_per_s']:.4g} m/s   step length "
+          f"{m['step_length_m']:.4g} m   cost of transport {m['cost_of_transport']:.3g}")
+    clearance = m["min_clearance_m"]
+    print(f"  min F_n {m['min_normal_force_mg']:.3g} mg   max |F_t|/F_n "
+          f"{m['max_friction_ratio']:.3g} (designed <= {spec.friction:.3g})   impulse ratio "
+          f"{m['impulse_ratio']:.3g}   max torque {m['max_torque']:.4g} N m")
+    print("  swing-foot clearance outside the scuffing zone "
+          + ("-" if clearance is None else f"{clearance:.3g} m")
+          + f"   constraint violation {m['constraint_violation']:.2e}")
+    print(f"  written: {out}")
+    return 0
+
+
 EXIT_CODES = """exit codes:
   0    every seed learned as the config asks (it did not diverge or fall, and met success:)
   1    some seed diverged, fell or missed the config's success: criterion (results kept)
@@ -438,6 +477,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot", help="bundled name, URDF path or example-robot-data:NAME")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_inspect)
+
+    p = _sub(sub, "gait", "design a walker's periodic gait by trajectory optimization",
+             "  feltool gait configs/gaits/compass_gait.yaml --out gait.yaml\n"
+             "  feltool gait configs/gaits/three_link_walker.yaml --speed 0.66\n"
+             "  feltool gait configs/gaits/compass_gait.yaml --passive --slope 0.0524\n\n"
+             "exit code 0 with the gait written, 1 when no gait was found (nothing written), "
+             "2 bad input")
+    p.add_argument("config", help="a physical walker's experiment YAML (walking.feet, legs)")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--speed", type=float, metavar="V", help="mean speed in [m/s]")
+    length.add_argument("--step-length", type=float, metavar="L", help="step length in [m] "
+                        "(default 0.35 hip heights)")
+    p.add_argument("--slope", type=float, metavar="RAD", help="ground slope in [rad], downhill "
+                   "along +x (default: the config's gravity)")
+    p.add_argument("--passive", action="store_true", help="no motor torque: the passive gait "
+                   "on the slope (period and step length free)")
+    p.add_argument("--knots", type=_positive_int, default=40, help="collocation intervals per "
+                   "step (default 40)")
+    p.add_argument("--out", type=Path, help="config to write (default <config>-gait.yaml)")
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="no IPOPT progress lines")
+    p.set_defaults(func=cmd_gait)
 
     p = _sub(sub, "plot", "(re)draw the figures of a complete run directory",
              "  feltool plot runs/arm\n  feltool plot runs/arm --seed 3")

@@ -88,6 +88,26 @@ class SineDemo(Strict):
                                "fraction of the period (e.g. 0.5 for a walker's other leg) [-].")
 
 
+class SamplesDemo(Strict):
+    """A demonstration given by samples over one period (e.g. a designed gait's collocation knots,
+    ``feltool gait``), fitted into the joint's RMP by least squares (eq. 2.4). The samples are
+    equally spaced in time, the first at t = 0 and the last at t = T (a walker's one-step
+    trajectory need not end where it starts); between them the trajectory is the cubic whose
+    acceleration is linear in time (exact for the gait designer's collocation)."""
+
+    kind: Literal["samples"] = Field(description="Demonstration kind.")
+    q: list[FiniteFloat] = Field(min_length=3, description="Positions in [rad] (or [m]) at "
+                                 "t = k T / (n - 1), k = 0..n-1.")
+    v: list[FiniteFloat] = Field(description="Velocities in [rad/s] at the same times.")
+    a: list[FiniteFloat] = Field(description="Accelerations in [rad/s^2] at the same times.")
+
+    @model_validator(mode="after")
+    def _same_length(self) -> SamplesDemo:
+        if not len(self.q) == len(self.v) == len(self.a):
+            raise ValueError("q, v and a need one value per sample each")
+        return self
+
+
 class Gains(Strict):
     """PD gains of a joint's feedback law (eq. 2.7 or §3.1)."""
 
@@ -150,7 +170,8 @@ class JointConfig(Strict):
     link_angle: list[str] | None = Field(None, min_length=1, description="track only: the "
         "tracked quantity is this link's absolute angle, the sum of these joints' angles "
         "(reference: the same sum of the desired joint angles); default the joint's own angle.")
-    demo: SineDemo | None = Field(None, description="Demonstration fitted into the RMP (eq. 2.4).")
+    demo: Annotated[SineDemo | SamplesDemo, Field(discriminator="kind")] | None = Field(
+        None, description="Demonstration fitted into the RMP (eq. 2.4).")
     gains: Gains | None = Field(None, description="Feedback gains (track and stabilize).")
     target: Target | None = Field(None, description="Stabilized quantity (stabilize only).")
     learn: LearnConfig | None = Field(None, description="Learn this joint's RMP by FEL.")

@@ -23,7 +23,7 @@ from feltool.fel import FeedbackErrorLearner
 from feltool.hybrid import Allocation, HybridLoop, Walker
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.plant import make_plant, plant_problems, plant_robot
-from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
+from feltool.rmp import PrimitiveSet, RhythmicPrimitive, samples_demo, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
 from feltool.seed import CycleOutcome, SeedResult, run_seed, stabilization_errors  # noqa: F401
 from feltool.simulate import ClosedLoop, Limits
@@ -247,8 +247,13 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         prims[i] = prim
         if jc.demo is not None:
             d = jc.demo
-            q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t, d.harmonics, d.delay)
-            thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=d.mean)
+            if d.kind == "samples":
+                q, v, a = samples_demo(d.q, d.v, d.a, T, fine_t)
+                goal = float(np.mean(q))
+            else:
+                q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t, d.harmonics, d.delay)
+                goal = d.mean
+            thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=goal)
         else:
             thetas[i] = np.zeros(prim.n_params)
     primitives = PrimitiveSet(prims, nv)

@@ -215,6 +215,21 @@ def sine_demo(mean: float, amplitude: float, period_s: float, phase: float, t: n
     return q, v, a
 
 
+def samples_demo(q, v, a, period_s: float, t: np.ndarray):
+    """The trajectory through knots ``q, v, a`` equally spaced over ``[0, T]`` (first at 0, last
+    at T), evaluated at times ``t`` in [0, T): on each interval the cubic with a linearly
+    changing acceleration, ``q_k + v_k s + a_k s^2/2 + (a_{k+1} - a_k) s^3 / (6 h)`` (the gait
+    designer's collocation, :mod:`feltool.gait_design`). Returns ``(q, v, a)`` at ``t``."""
+    q, v, a = (np.asarray(x, dtype=float) for x in (q, v, a))
+    h = period_s / (len(q) - 1)
+    t = np.asarray(t, dtype=float)
+    k = np.clip((t // h).astype(int), 0, len(q) - 2)
+    s = t - k * h
+    jerk = (a[k + 1] - a[k]) / h
+    return (q[k] + v[k] * s + a[k] * s**2 / 2 + jerk * s**3 / 6,
+            v[k] + a[k] * s + jerk * s**2 / 2, a[k] + jerk * s)
+
+
 class PrimitiveSet:
     """The forward trajectory generator: one RMP per joint of the model, parameters stacked.
 

@@ -1,0 +1,170 @@
+"""``feltool gait``'s input and output: the walker of a config, the gait as RMP demonstrations.
+
+The input is an experiment config of a physical walker (``walking.feet``, ``walking.legs``,
+``walking.base``, ``walking.friction``, ... as in docs/biped.md). The output is the same config
+with the designed gait: each tracked or passive joint's ``demo`` becomes the one-step trajectory
+(stance-relative labels) as ``kind: samples`` at the collocation knots (fitted into its RMP by
+eq. 2.4), ``period_s`` the step's duration, and a slope becomes a tilted ``gravity``.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from feltool.errors import ConfigError, RobotError
+from feltool.gait_design import Gait, GaitSpec
+from feltool.robot import load_robot
+from feltool.walker_model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
+
+
+def walker_from_raw(raw: dict[str, Any], source: Path | None = None
+                    ) -> tuple[WalkerModel, dict[str, Any]]:
+    """The walker and its ``walking`` settings from a raw config mapping.
+
+    TO BE REPLACED by the physical walker's config schema (``feltool.walker_config``) once it is
+    on main: this reads the few fields the gait designer needs (``robot``, ``gravity``,
+    ``walking.base/feet/legs/stance/friction/normal_force_min/scuff_exempt_m/steps_per_cycle``)
+    from the raw YAML mapping, naming the YAML path of a problem.
+
+    Returns:
+        The walker, and a dict with ``stance``, ``friction``, ``normal_force_min`` [N],
+        ``scuff_exempt_m`` [m] or None, ``steps_per_cycle``, ``gravity`` [m/s^2] and ``slope``
+        [rad] (the tilt of a gravity vector about y, positive downhill along +x).
+
+    Raises:
+        ConfigError: naming the YAML path of a missing or wrong field.
+    """
+    where = str(source) if source else None
+    walking = raw.get("walking")
+    if not isinstance(walking, dict) or not isinstance(walking.get("feet"), dict):
+        raise ConfigError([("walking.feet", "feltool gait needs a physical walker: give "
+                            "walking.feet (left and right contact points) and walking.legs")],
+                          where)
+    feet = {}
+    for name in ("left", "right"):
+        spec = walking["feet"].get(name)
+        if not isinstance(spec, dict) or ("frame" in spec) == ("link" in spec):
+            raise ConfigError([(f"walking.feet.{name}", "give a foot as {frame: NAME} or "
+                                "{link: NAME, offset: [x, y, z]}")], where)
+        feet[name] = FootSpec(frame=spec.get("frame"), link=spec.get("link"),
+                              offset=tuple(float(x) for x in spec.get("offset", (0, 0, 0))))
+    legs = walking.get("legs")
+    if not isinstance(legs, list) or not legs or not all(
+            isinstance(p, list) and len(p) == 2 for p in legs):
+        raise ConfigError([("walking.legs", "give the left/right joint pairs, e.g. "
+                            "[[left_hip, right_hip]]")], where)
+    base_dir = source.parent if source else Path.cwd()
+    try:
+        robot = load_robot(str(raw.get("robot")), base_dir=base_dir)
+    except RobotError as exc:
+        raise ConfigError([("robot", str(exc))], where) from None
+    gravity = raw.get("gravity", 9.8)
+    if isinstance(gravity, list):
+        g = np.asarray(gravity, dtype=float)
+        magnitude, slope = float(np.linalg.norm(g)), float(np.arctan2(g[0], -g[2]))
+    else:
+        magnitude, slope = float(gravity), 0.0
+    robot.set_gravity(magnitude)
+    try:
+        walker = build_walker_model(robot, feet, [tuple(p) for p in legs],
+                                    walking.get("base", "planar"))
+    except RobotError as exc:
+        raise ConfigError([("walking", str(exc))], where) from None
+    settings = {
+        "stance": walking.get("stance", "left"),
+        "friction": float(walking.get("friction", 0.7)),
+        "normal_force_min": float(walking.get("normal_force_min", 0.0)),
+        "scuff_exempt_m": walking.get("scuff_exempt_m"),
+        "steps_per_cycle": int(walking.get("steps_per_cycle", 1)),
+        "gravity": magnitude, "slope": slope,
+    }
+    return walker, settings
+
+
+def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any], *,
+              speed: float | None = None, step_length: float | None = None,
+              slope: float | None = None, passive: bool = False, knots: int = 40,
+              friction_margin: float = 0.85) -> GaitSpec:
+    """The :class:`GaitSpec` of a config and the command line's choices.
+
+    The step's duration is the config's ``period_s`` over ``steps_per_cycle`` (free for a
+    passive gait); the friction cone is designed within ``friction_margin`` times the config's
+    mu (a margin for tracking); the torso is ``base_pitch`` when the config stabilizes it, at its
+    ``target.value``. Without speed or step length, the step length is 0.35 hip heights.
+    """
+    stance = settings["stance"]
+    joints = raw.get("joints") or {}
+    pitch = joints.get(BASE_JOINTS[2]) if walker.base == list(BASE_JOINTS) else None
+    pitch_target = None
+    if isinstance(pitch, dict) and pitch.get("role") == "stabilize":
+        pitch_target = (pitch.get("target") or {}).get("value")
+    period = raw.get("period_s")
+    duration = None
+    if not passive and period is not None:
+        duration = float(period) / settings["steps_per_cycle"]
+    if not passive and speed is None and step_length is None:
+        step_length = 0.35 * _hip_height(walker, stance)
+    return GaitSpec(
+        stance=stance, swing="right" if stance == "left" else "left", knots=knots,
+        step_length=step_length, speed=speed, duration=duration,
+        slope=settings["slope"] if slope is None else slope, passive=passive,
+        friction=friction_margin * settings["friction"],
+        normal_force_min=settings["normal_force_min"], scuff_exempt_m=settings["scuff_exempt_m"],
+        clearance=not passive,
+        pitch_joint=BASE_JOINTS[2] if pitch_target is not None else None,
+        pitch_target=None if pitch_target is None else float(pitch_target))
+
+
+def _hip_height(walker: WalkerModel, foot: str) -> float:
+    import pinocchio as pin
+
+    data = walker.model.createData()
+    pin.framesForwardKinematics(walker.model, data, pin.neutral(walker.model))
+    return float(-data.oMf[walker.feet[foot]].translation[2])
+
+
+def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: GaitSpec,
+                settings: dict[str, Any]) -> dict[str, Any]:
+    """``raw`` with the designed gait: samples demos of its tracked and passive joints (not the
+    base's x and z, which follow from the stance foot), ``period_s`` and the slope's gravity."""
+    if settings["steps_per_cycle"] != 1:
+        raise ConfigError([("walking.steps_per_cycle", "feltool gait writes one-step demos "
+                            "(stance-relative labels): set walking.steps_per_cycle to 1")])
+    out = copy.deepcopy(raw)
+    out["period_s"] = _num(gait.duration)
+    if spec.slope != 0.0:
+        g = settings["gravity"]
+        out["gravity"] = [_num(g * np.sin(spec.slope)), 0.0, _num(-g * np.cos(spec.slope))]
+    joints = out.setdefault("joints", {})
+    for name, jc in joints.items():
+        if name in BASE_JOINTS[:2] or not isinstance(jc, dict):
+            continue
+        if jc.get("role") not in ("track", "passive"):
+            continue
+        i = walker.robot.v_index(name)
+        jc["demo"] = {"kind": "samples", "q": [_num(x) for x in gait.q[:, i]],
+                      "v": [_num(x) for x in gait.v[:, i]],
+                      "a": [_num(x) for x in gait.a[:, i]]}
+    return out
+
+
+def _num(x: float) -> float:
+    return float(f"{float(x):.7g}")
+
+
+def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: str) -> None:
+    """Write ``config`` as YAML with a header of the gait's figures."""
+    m = gait.metrics
+    header = (f"# Gait designed by: {command}\n"
+              f"# period {m['period_s']:.4g} s, speed {m['speed_m_per_s']:.4g} m/s, step length "
+              f"{m['step_length_m']:.4g} m, cost of transport {m['cost_of_transport']:.3g},\n"
+              f"# min F_n {m['min_normal_force_mg']:.3g} mg, max |F_t|/F_n "
+              f"{m['max_friction_ratio']:.3g}, impulse ratio {m['impulse_ratio']:.3g}; demos: "
+              "one step in stance-relative labels (kind: samples).\n")
+    text = yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=100)
+    Path(path).write_text(header + text)
