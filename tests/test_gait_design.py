@@ -215,3 +215,60 @@ def test_infeasible_step_names_the_violated_constraint_group():
         design_gait(walker, spec)
     name = str(info.value).split("violated most is '")[1].split("'")[0]
     assert name in GROUPS
+
+
+# --- the demos it writes ---------------------------------------------------------------------
+
+def test_samples_demo_is_exact_for_a_cubic_with_linear_acceleration():
+    from feltool.rmp import samples_demo
+
+    T, knots = 0.8, np.linspace(0.0, 0.8, 9)
+    t = np.linspace(0.0, T, 101, endpoint=False)
+    q, v, a = samples_demo(knots**3 - knots, 3 * knots**2 - 1, 6 * knots, T, t)
+    assert np.allclose(q, t**3 - t, atol=1e-12)
+    assert np.allclose(v, 3 * t**2 - 1, atol=1e-12)
+    assert np.allclose(a, 6 * t, atol=1e-12)
+
+
+def test_samples_demo_fits_the_rmp_as_the_same_sine_does():
+    from feltool.config import read_yaml
+    from feltool.experiment import build_experiment, resolve_config_path
+
+    raw = read_yaml(resolve_config_path("two_link_standard"))
+    sine = build_experiment(raw)
+    demo = raw["joints"]["shoulder"]["demo"]
+    T = raw["period_s"]
+    t = np.linspace(0.0, T, 201)
+    w = 2 * np.pi / T
+    raw["joints"]["shoulder"]["demo"] = {
+        "kind": "samples", "q": list(demo["mean"] + demo["amplitude"] * np.sin(w * t)),
+        "v": list(demo["amplitude"] * w * np.cos(w * t)),
+        "a": list(-demo["amplitude"] * w**2 * np.sin(w * t))}
+    samples = build_experiment(raw)
+    block = sine.primitives.slices[0]
+    expected = sine.theta_demo[block]
+    assert np.allclose(samples.theta_demo[block], expected, atol=1e-3 * np.abs(expected).max())
+
+
+def test_cli_writes_a_gait_config_and_fails_cleanly(tmp_path, capsys):
+    import yaml
+
+    from feltool.cli import main
+
+    out = tmp_path / "gait.yaml"
+    assert main(["gait", "configs/gaits/compass_gait.yaml", "--step-length", "0.4", "--knots",
+                 "24", "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    for word in ("solver time", "iterations", "period", "speed", "step length",
+                 "cost of transport", "min F_n", "max |F_t|/F_n", "constraint violation"):
+        assert word in text
+    config = yaml.safe_load(out.read_text())
+    hip = config["joints"]["hip"]["demo"]
+    assert hip["kind"] == "samples" and len(hip["q"]) == 25
+    assert config["period_s"] == pytest.approx(0.6)
+    bad = tmp_path / "bad.yaml"
+    assert main(["gait", "configs/gaits/compass_gait.yaml", "--step-length", "2.5", "--knots",
+                 "16", "--out", str(bad), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "constraint group violated most" in err and "Traceback" not in err
+    assert not bad.exists()
