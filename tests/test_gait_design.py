@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -272,3 +274,34 @@ def test_cli_writes_a_gait_config_and_fails_cleanly(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "constraint group violated most" in err and "Traceback" not in err
     assert not bad.exists()
+
+
+def test_a_walker_never_seen_gets_a_gait_from_its_config_alone(tmp_path):
+    """A torso-rooted five-link walker with other masses and lengths and continuous joints,
+    feet given as link + offset: the designer needs nothing but the config."""
+    from feltool.gait_config import gait_spec, walker_from_raw
+
+    text = (Path(__file__).resolve().parents[1] / "robots" / "five_link_walker.urdf").read_text()
+    for old, new in (('name="five_link_walker"', 'name="other_walker"'),
+                     ('<mass value="12.0"/>', '<mass value="18.0"/>'),
+                     ('<mass value="6.8"/>', '<mass value="5.0"/>'),
+                     ('<mass value="3.2"/>', '<mass value="2.5"/>'),
+                     ('xyz="0 0 -0.4"', 'xyz="0 0 -0.45"'),
+                     ('type="revolute"', 'type="continuous"')):
+        assert old in text
+        text = text.replace(old, new)
+    (tmp_path / "other_walker.urdf").write_text(text)
+    raw = {"robot": "other_walker.urdf", "gravity": 9.81, "period_s": 0.55,
+           "joints": {"base_pitch": {"role": "stabilize", "target": {"value": 0.05}}},
+           "walking": {"feet": {"left": {"link": "left_shin", "offset": [0, 0, -0.45]},
+                                "right": {"link": "right_shin", "offset": [0, 0, -0.45]}},
+                       "legs": [["left_hip", "right_hip"], ["left_knee", "right_knee"]],
+                       "friction": 0.8}}
+    walker, settings = walker_from_raw(raw, tmp_path / "other.yaml")
+    assert walker.model.nq == walker.model.nv + 4  # four (cos, sin) joints
+    spec = gait_spec(raw, walker, settings, speed=0.7, knots=24)
+    gait = design_gait(walker, spec)
+    _check_dynamics(walker, spec, gait)
+    _check_impact_and_periodicity(walker, spec, gait)
+    assert gait.metrics["min_clearance_m"] >= -1e-6  # no scuffing zone with knees
+    assert np.mean(gait.q[:, walker.robot.v_index("base_pitch")]) == pytest.approx(0.05)
