@@ -437,7 +437,8 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
     max_viol = max(by_group.values())
     info = {"success": bool(stats["success"]), "status": stats["return_status"],
             "iterations": int(stats["iter_count"]), "solve_time_s": solve_time,
-            "build_time_s": build_time, "nlpsol_time_s": nlpsol_time, "knots": N + 1, "variables": int(w.numel()),
+            "build_time_s": build_time, "nlpsol_time_s": nlpsol_time, "knots": N + 1,
+            "variables": int(w.numel()),
             "constraints": int(g.numel()), "constraint_violation": max_viol,
             "violation_by_group": by_group}
     if not stats["success"] or max_viol > 1e-6:
