@@ -1,0 +1,64 @@
+"""Gait design speed and the designed gaits' figures, for every bundled walker (docs/performance.md).
+
+Each walker's gait is designed ``repeats`` times from the designer's own initial guess (the NLP
+built anew each time); the table gives the median solver time (IPOPT's wall time, one thread),
+the median time to build the NLP (CasADi's SX graph, its derivatives), IPOPT's iterations, the
+knots, and the gait's period, speed, step length, cost of transport, least normal force, largest
+friction ratio and impact impulse ratio. Run with one BLAS/OpenMP thread (``OMP_NUM_THREADS=1``,
+set below before numpy loads): MUMPS' threads only slow it down on a shared 2-core machine.
+
+Usage: ``python benchmarks/gait_design.py [repeats]`` (default 5)
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from feltool.config import read_yaml  # noqa: E402
+from feltool.gait_config import gait_spec, walker_from_raw  # noqa: E402
+from feltool.gait_design import design_gait  # noqa: E402
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "gaits"
+CASES = [  # label, config, designer options (as feltool gait's)
+    ("compass gait, passive, 3 deg slope", "compass_gait",
+     {"passive": True, "slope": float(np.deg2rad(3.0))}),
+    ("compass gait, hip motor, 0.03 rad slope", "compass_gait", {"step_length": 0.4}),
+    ("three-link walker (torso 0.1 rad)", "three_link_walker", {"speed": 0.66}),
+    ("five-link walker with knees", "five_link_walker", {"speed": 0.8}),
+]
+
+
+def main(repeats: int = 5) -> None:
+    rows = []
+    for label, name, options in CASES:
+        raw = read_yaml(CONFIGS / f"{name}.yaml")
+        walker, settings = walker_from_raw(raw, CONFIGS / f"{name}.yaml")
+        spec = gait_spec(raw, walker, settings, **options)
+        runs = [design_gait(walker, spec) for _ in range(repeats)]
+        solve = float(np.median([g.stats["solve_time_s"] for g in runs]))
+        build = float(np.median([g.stats["build_time_s"] for g in runs]))
+        g = runs[-1]
+        m = g.metrics
+        rows.append((label, solve, build, g.stats["iterations"], g.stats["knots"], m))
+        print(f"{label}: solve {solve:.3f} s (median of {repeats}), build {build:.2f} s, "
+              f"{g.stats['iterations']} iterations", file=sys.stderr, flush=True)
+    print("| walker | solve [s] | build [s] | iterations | knots | period [s] | speed [m/s] | "
+          "step [m] | CoT | min F_n / mg | max abs(F_t)/F_n | impulse ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for label, solve, build, it, knots, m in rows:
+        print(f"| {label} | {solve:.3f} | {build:.2f} | {it} | {knots} | {m['period_s']:.3f} | "
+              f"{m['speed_m_per_s']:.3f} | {m['step_length_m']:.3f} | "
+              f"{m['cost_of_transport']:.3f} | {m['min_normal_force_mg']:.2f} | "
+              f"{m['max_friction_ratio']:.2f} | {m['impulse_ratio']:.2f} |")
+
+
+if __name__ == "__main__":
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 5)
