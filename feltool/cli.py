@@ -322,7 +322,8 @@ def cmd_gait(args: argparse.Namespace) -> int:
     raw = read_yaml(path)
     walker, settings = walker_from_raw(raw, path)
     spec = gait_spec(raw, walker, settings, speed=args.speed, step_length=args.step_length,
-                     slope=args.slope, passive=args.passive, knots=args.knots)
+                     slope=args.slope, passive=args.passive, knots=args.knots,
+                     torso_weight=args.torso_weight)
     out = args.out or Path(f"{path.stem}-gait.yaml")
 
     def progress(it: int, viol: float, cost: float) -> None:
@@ -495,6 +496,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "on the slope (period and step length free)")
     p.add_argument("--knots", type=_positive_int, default=40, help="collocation intervals per "
                    "step (default 40)")
+    p.add_argument("--torso-weight", type=float, metavar="W", help="weight of the torso's "
+                   "motion about its mean per [rad^2 s] (default 100; the torque cost is ~0.01)")
     p.add_argument("--out", type=Path, help="config to write (default <config>-gait.yaml)")
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="no IPOPT progress lines")

@@ -2,9 +2,10 @@
 
 The input is an experiment config of a physical walker (``walking.feet``, ``walking.legs``,
 ``walking.base``, ``walking.friction``, ... as in docs/biped.md). The output is the same config
-with the designed gait: each tracked or passive joint's ``demo`` becomes the one-step trajectory
-(stance-relative labels) as ``kind: samples`` at the collocation knots (fitted into its RMP by
-eq. 2.4), ``period_s`` the step's duration, and a slope becomes a tilted ``gravity``.
+with the designed gait: each tracked or passive joint's ``demo`` becomes its trajectory over one
+step (stance-relative labels) or two (``steps_per_cycle: 2``, the first step's labels, continuous)
+as ``kind: samples`` at the collocation knots (fitted into its RMP by eq. 2.4), ``period_s`` the
+cycle's duration, and a slope becomes a tilted ``gravity``.
 """
 
 from __future__ import annotations
@@ -89,13 +90,14 @@ def walker_from_raw(raw: dict[str, Any], source: Path | None = None
 def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any], *,
               speed: float | None = None, step_length: float | None = None,
               slope: float | None = None, passive: bool = False, knots: int = 40,
-              friction_margin: float = 0.85) -> GaitSpec:
+              friction_margin: float = 0.85, torso_weight: float | None = None) -> GaitSpec:
     """The :class:`GaitSpec` of a config and the command line's choices.
 
     The step's duration is the config's ``period_s`` over ``steps_per_cycle`` (free for a
     passive gait); the friction cone is designed within ``friction_margin`` times the config's
     mu (a margin for tracking); the torso is ``base_pitch`` when the config stabilizes it, at its
-    ``target.value``. Without speed or step length, the step length is 0.35 hip heights.
+    ``target.value`` (``torso_weight``: the weight of its motion, default GaitSpec's). Without
+    speed or step length, the step length is 0.35 hip heights.
     """
     stance = settings["stance"]
     joints = raw.get("joints") or {}
@@ -109,8 +111,9 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
         duration = float(period) / settings["steps_per_cycle"]
     if not passive and speed is None and step_length is None:
         step_length = 0.35 * _hip_height(walker, stance)
+    extra = {} if torso_weight is None else {"pitch_weight": torso_weight}
     return GaitSpec(
-        stance=stance, swing="right" if stance == "left" else "left", knots=knots,
+        **extra, stance=stance, swing="right" if stance == "left" else "left", knots=knots,
         step_length=step_length, speed=speed, duration=duration,
         slope=settings["slope"] if slope is None else slope, passive=passive,
         friction=friction_margin * settings["friction"],
@@ -131,12 +134,29 @@ def _hip_height(walker: WalkerModel, foot: str) -> float:
 def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: GaitSpec,
                 settings: dict[str, Any]) -> dict[str, Any]:
     """``raw`` with the designed gait: samples demos of its tracked and passive joints (not the
-    base's x and z, which follow from the stance foot), ``period_s`` and the slope's gravity."""
-    if settings["steps_per_cycle"] != 1:
-        raise ConfigError([("walking.steps_per_cycle", "feltool gait writes one-step demos "
-                            "(stance-relative labels): set walking.steps_per_cycle to 1")])
+    base's x and z, which follow from the stance foot), ``period_s`` and the slope's gravity.
+
+    With ``steps_per_cycle: 1`` each demo is the step in stance-relative labels (a leg joint's
+    trajectory then ends elsewhere than it starts: the other leg carries its label after the
+    touchdown). With ``steps_per_cycle: 2`` each demo is two steps in the first step's labels:
+    the step, then its relabelled copy ``R q(t)`` (the physical walker exchanges the legs' desired
+    values in every second step), continuous in position because the gait is periodic through
+    the relabelling, ``q(T) = R q(0)`` up to the shift along x; at the touchdown knot the samples
+    hold the post-impact velocity and acceleration.
+    """
+    spc = settings["steps_per_cycle"]
+    if spc not in (1, 2):
+        raise ConfigError([("walking.steps_per_cycle", "feltool gait writes demos of one step "
+                            "(stance-relative labels) or two (the first step's labels): set "
+                            "walking.steps_per_cycle to 1 or 2")])
+    _, R = walker.relabel_matrices()
+    q, v, a = gait.q, gait.v, gait.a
+    if spc == 2:
+        q = np.vstack([q, (R @ q[1:].T).T])
+        v = np.vstack([v[:-1], [gait.v_plus], (R @ v[1:].T).T])
+        a = np.vstack([a[:-1], [R @ a[0]], (R @ a[1:].T).T])
     out = copy.deepcopy(raw)
-    out["period_s"] = _num(gait.duration)
+    out["period_s"] = _num(spc * gait.duration)
     if spec.slope != 0.0:
         g = settings["gravity"]
         out["gravity"] = [_num(g * np.sin(spec.slope)), 0.0, _num(-g * np.cos(spec.slope))]
@@ -147,9 +167,8 @@ def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: Gait
         if jc.get("role") not in ("track", "passive"):
             continue
         i = walker.robot.v_index(name)
-        jc["demo"] = {"kind": "samples", "q": [_num(x) for x in gait.q[:, i]],
-                      "v": [_num(x) for x in gait.v[:, i]],
-                      "a": [_num(x) for x in gait.a[:, i]]}
+        jc["demo"] = {"kind": "samples", "q": [_num(x) for x in q[:, i]],
+                      "v": [_num(x) for x in v[:, i]], "a": [_num(x) for x in a[:, i]]}
     return out
 
 

@@ -78,7 +78,9 @@ class GaitSpec:
         pitch_joint: Base coordinate (normally ``base_pitch`` of a torso-rooted walker) held on
             average at ``pitch_target`` [rad]; None: no torso.
         pitch_target: Mean of the torso's pitch in [rad] (None: free, only its motion penalised).
-        pitch_weight: Weight of the torso's squared deviation from its mean/target, per [rad^2 s].
+        pitch_weight: Weight of the torso's squared deviation from its mean, per [rad^2 s] (the
+            torque cost is ~1e-2 for torques of 0.1 m g l): the walker's torso stabilizer holds a
+            constant target, so a designed torso motion is what its feedback fights.
         max_iter: IPOPT's iteration limit.
         tol: IPOPT's convergence tolerance.
     """
@@ -98,7 +100,7 @@ class GaitSpec:
     clearance: bool = True
     pitch_joint: str | None = None
     pitch_target: float | None = None
-    pitch_weight: float = 1.0
+    pitch_weight: float = 100.0
     max_iter: int = 500
     tol: float = 1e-8
 

@@ -223,7 +223,8 @@ def samples_demo(q, v, a, period_s: float, t: np.ndarray):
     q, v, a = (np.asarray(x, dtype=float) for x in (q, v, a))
     h = period_s / (len(q) - 1)
     t = np.asarray(t, dtype=float)
-    k = np.clip((t // h).astype(int), 0, len(q) - 2)
+    # a time on a knot belongs to the interval it starts (rounded: 0.5 // 0.0125 is 39.0)
+    k = np.clip(np.floor(np.round(t / h, 9)).astype(int), 0, len(q) - 2)
     s = t - k * h
     jerk = (a[k + 1] - a[k]) / h
     return (q[k] + v[k] * s + a[k] * s**2 / 2 + jerk * s**3 / 6,

@@ -230,6 +230,12 @@ def test_samples_demo_is_exact_for_a_cubic_with_linear_acceleration():
     assert np.allclose(q, t**3 - t, atol=1e-12)
     assert np.allclose(v, 3 * t**2 - 1, atol=1e-12)
     assert np.allclose(a, 6 * t, atol=1e-12)
+    # A time on a knot takes that knot's values (not the end of the interval before: a velocity
+    # jumps there at an impact), even where floating point puts t / h just below the knot.
+    step = np.array([0.0, 1.0, 2.0, 3.0, 10.0, 11.0, 12.0])
+    T = 0.0125 * 6
+    q, v, _ = samples_demo(step, step, np.zeros(7), T, np.array([0.5 * T, 4 * 0.0125]))
+    assert v[1] == pytest.approx(10.0) and q[1] == pytest.approx(10.0)
 
 
 def test_samples_demo_fits_the_rmp_as_the_same_sine_does():
