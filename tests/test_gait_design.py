@@ -272,8 +272,14 @@ def test_cli_writes_a_gait_config_and_fails_cleanly(tmp_path, capsys):
         assert word in text
     config = yaml.safe_load(out.read_text())
     hip = config["joints"]["hip"]["demo"]
-    assert hip["kind"] == "samples" and len(hip["q"]) == 25
-    assert config["period_s"] == pytest.approx(0.6)
+    # steps_per_cycle 2: two steps in the first step's labels, 2 x 24 intervals; the demo is
+    # periodic in position (the second step is the first relabelled), its velocity jumps at
+    # the touchdown (knot 24) and at the cycle's end.
+    assert hip["kind"] == "samples" and len(hip["q"]) == 49
+    assert config["period_s"] == pytest.approx(1.2)
+    for joint in ("hip", "base_pitch"):
+        demo = config["joints"][joint]["demo"]
+        assert demo["q"][-1] == pytest.approx(demo["q"][0], abs=1e-6)
     bad = tmp_path / "bad.yaml"
     assert main(["gait", "configs/gaits/compass_gait.yaml", "--step-length", "2.5", "--knots",
                  "16", "--out", str(bad), "--no-progress"]) == 1
