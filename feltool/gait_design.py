@@ -242,14 +242,15 @@ def _walker_pieces(walker: WalkerModel, spec: GaitSpec) -> _Walker:
 class _Builder:
     """Collects decision variables and constraint groups (named, for the failure message)."""
 
-    def __init__(self):
+    def __init__(self, sym=ca.SX):
+        self.sym = sym
         self.w, self.w0, self.lbw, self.ubw = [], [], [], []
         self.g, self.lbg, self.ubg = [], [], []
         self.groups: list[tuple[str, int, int]] = []
         self._ng = 0
 
-    def var(self, name: str, shape: tuple[int, int], guess, lb=-np.inf, ub=np.inf) -> ca.SX:
-        x = ca.SX.sym(name, *shape)
+    def var(self, name: str, shape: tuple[int, int], guess, lb=-np.inf, ub=np.inf):
+        x = self.sym.sym(name, *shape)
         n = shape[0] * shape[1]
         self.w.append(ca.vec(x))
         for store, val in ((self.w0, guess), (self.lbw, lb), (self.ubw, ub)):
@@ -353,34 +354,21 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
     if exempt is None:
         exempt = 0.05 if len(walker.legs) <= 1 else 0.0
     dip = 0.1 * ell
-    for k in range(N + 1):
-        qk = W.to_pin(Q[:, k])
-        _, Js, _, dds = st(qk, V[:, k], A[:, k])
-        tau = W.rnea(qk, V[:, k], A[:, k])
-        gen = ca.mtimes(Js[[0, 2], :].T, F[:, k] * mg)
-        if U is not None:
-            gen = gen + ca.mtimes(B, U[:, k])
-        b.add("dynamics", (tau - gen) * tau_scale)
-        b.add("stance", dds[[0, 2]] / W.gravity)
-        fmin = spec.normal_force_min / mg
-        b.add("friction", ca.vertcat(F[1, k] - fmin, spec.friction * F[1, k] - F[0, k],
-                                     spec.friction * F[1, k] + F[0, k]), 0.0, np.inf)
-        if U is not None:
-            weight = 0.5 if k in (0, N) else 1.0
-            cost = cost + weight * h * ca.sumsqr(ca.mtimes(B, U[:, k]) * tau_scale)
-        if spec.clearance and 0 < k < N:
-            p_sw = sw(qk, V[:, k], A[:, k])[0]
-            p_st = st(qk, V[:, k], A[:, k])[0]
-            if exempt > 0:
-                dx = (p_sw[0] - p_st[0]) / exempt
-                allowance = dip * ca.fmax(0.0, 1.0 - dx * dx)
-            else:
-                allowance = 0.0
-            b.add("clearance", p_sw[2] + allowance, 0.0, np.inf)
-    for k in range(N):
-        b.add("collocation", ca.vertcat(
-            V[:, k + 1] - V[:, k] - h / 2 * (A[:, k] + A[:, k + 1]),
-            Q[:, k + 1] - Q[:, k] - h * V[:, k] - h * h / 6 * (2 * A[:, k] + A[:, k + 1])))
+    knot, interval = _knot_functions(W, spec, B, mg, ell, tau_scale, exempt, dip)
+    hk = T / N
+    U_all = U if U is not None else ca.DM.zeros(m, N + 1)
+    dyn, stance, fric, clear, effort = knot.map(N + 1)(Q, V, A, F, U_all)
+    b.add("dynamics", dyn)
+    b.add("stance", stance)
+    b.add("friction", fric, 0.0, np.inf)
+    if spec.clearance:
+        b.add("clearance", clear[:, 1:N], 0.0, np.inf)
+    if U is not None:
+        weights = np.ones(N + 1)
+        weights[[0, N]] = 0.5
+        cost = cost + hk * ca.dot(ca.vec(effort), weights)
+    b.add("collocation", interval.map(N)(Q[:, :N], V[:, :N], A[:, :N], Q[:, 1:], V[:, 1:],
+                                         A[:, 1:], hk))
     # Touchdown, impact, relabelling, periodicity.
     qN = W.to_pin(Q[:, N])
     zeros = ca.DM.zeros(nv)
@@ -389,8 +377,7 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
     b.add("touchdown", ca.vertcat(p_w[0] - L, p_w[2]) / ell)
     b.add("touchdown", dp_w[2], -np.inf, 0.0)
     # M (v+ - v-) as the directional derivative of the RNEA in a.
-    a_sym = ca.SX.sym("a_dir", nv)
-    mass_times = ca.jtimes(W.rnea(qN, ca.DM.zeros(nv), a_sym), a_sym, Vp - V[:, N])
+    mass_times = _mass_times(W)(qN, Vp - V[:, N])
     b.add("impact", (mass_times - ca.mtimes(J_w[[0, 2], :].T, I * imp_scale)) / imp_scale)
     b.add("impact", ca.mtimes(J_w[[0, 2], :], Vp))
     b.add("impulse", ca.vertcat(I[1], spec.friction * I[1] - I[0], spec.friction * I[1] + I[0]),
@@ -407,7 +394,7 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
             b.add("torso", mean - spec.pitch_target)
         cost = cost + spec.pitch_weight * h * ca.sumsqr(Q[ip, :] - mean)
     w, w0, lbw, ubw, g, lbg, ubg = b.vectors()
-    nlp = {"x": w, "f": cost if not isinstance(cost, int) else ca.SX(0), "g": g}
+    nlp = {"x": w, "f": cost if not isinstance(cost, int) else b.sym(0), "g": g}
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
             "ipopt.max_iter": spec.max_iter, "ipopt.tol": spec.tol,
             "ipopt.constr_viol_tol": spec.tol, "ipopt.mu_strategy": "adaptive",
@@ -451,9 +438,9 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
             f"by {by_group[worst]:.3g} (scaled); ask for a gait it can reach (another speed or "
             "step length, a lower force margin, more friction) or raise the torque limits")
     unpack = ca.Function("unpack", [w], [Q, V, A, F, Vp, I,
-                                         U if U is not None else ca.SX(0, N + 1),
-                                         T if not isinstance(T, float) else ca.SX(T),
-                                         L if not isinstance(L, float) else ca.SX(L)])
+                                         U if U is not None else b.sym(0, N + 1),
+                                         T if not isinstance(T, float) else b.sym(T),
+                                         L if not isinstance(L, float) else b.sym(L)])
     Qn, Vn, An, Fn, Vpn, In, Un, Tn, Ln = (np.array(y) for y in unpack(x))
     tau = (B @ Un).T if Un.size else np.zeros((N + 1, nv))
     gait = Gait(t=np.linspace(0.0, Tn.item(), N + 1), q=Qn.T,
@@ -462,6 +449,45 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
                 duration=Tn.item(), step_length=Ln.item(), stats=info)
     gait.metrics = gait_metrics(walker, W.model, gait, spec, exempt)
     return gait
+
+
+def _knot_functions(W: _Walker, spec: GaitSpec, B: np.ndarray, mg: float, ell: float,
+                    tau_scale: float, exempt: float, dip: float) -> tuple[ca.Function, ...]:
+    """SX functions of one knot and of one interval, mapped over the knots by the NLP (their
+    exact derivatives are built once, not once per knot).
+
+    ``knot(q, v, a, lam, u) -> (dynamics, stance, friction, clearance, effort)``;
+    ``interval(q0, v0, a0, q1, v1, a1, h) -> collocation residuals``.
+    """
+    nv, m = W.nv, B.shape[1]
+    q, v, a = ca.SX.sym("q", nv), ca.SX.sym("v", nv), ca.SX.sym("a", nv)
+    lam, u = ca.SX.sym("lam", 2), ca.SX.sym("u", m)
+    qp = W.to_pin(q)
+    p_st, Js, _, dds = W.feet[spec.stance](qp, v, a)
+    p_sw = W.feet[spec.swing](qp, v, a)[0]
+    gen = ca.mtimes(Js[[0, 2], :].T, lam * mg) + ca.mtimes(B, u)
+    dynamics = (W.rnea(qp, v, a) - gen) * tau_scale
+    fmin = spec.normal_force_min / mg
+    friction = ca.vertcat(lam[1] - fmin, spec.friction * lam[1] - lam[0],
+                          spec.friction * lam[1] + lam[0])
+    allowance = 0.0
+    if exempt > 0:
+        dx = (p_sw[0] - p_st[0]) / exempt
+        allowance = dip * ca.fmax(0.0, 1.0 - dx * dx)
+    effort = ca.sumsqr(ca.mtimes(B, u) * tau_scale)
+    knot = ca.Function("knot", [q, v, a, lam, u],
+                       [dynamics, dds[[0, 2]] / W.gravity, friction, p_sw[2] + allowance, effort])
+    q1, v1, a1, h = ca.SX.sym("q1", nv), ca.SX.sym("v1", nv), ca.SX.sym("a1", nv), ca.SX.sym("h")
+    interval = ca.Function("interval", [q, v, a, q1, v1, a1, h], [ca.vertcat(
+        v1 - v - h / 2 * (a + a1), q1 - q - h * v - h * h / 6 * (2 * a + a1))])
+    return knot, interval
+
+
+def _mass_times(W: _Walker) -> ca.Function:
+    """``(q_pin, dv) -> M(q) dv``: the directional derivative of the RNEA in a (SX)."""
+    q, dv, a = ca.SX.sym("q", W.model.nq), ca.SX.sym("dv", W.nv), ca.SX.sym("a", W.nv)
+    return ca.Function("mass_times", [q, dv],
+                       [ca.jtimes(W.rnea(q, ca.DM.zeros(W.nv), a), a, dv)])
 
 
 class _Progress(ca.Callback):
