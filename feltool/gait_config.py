@@ -90,13 +90,16 @@ def walker_from_raw(raw: dict[str, Any], source: Path | None = None
 def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any], *,
               speed: float | None = None, step_length: float | None = None,
               slope: float | None = None, passive: bool = False, knots: int = 40,
-              friction_margin: float = 0.85, torso_weight: float | None = None) -> GaitSpec:
+              friction_margin: float = 0.85, torso_weight: float | None = None,
+              normal_force_margin: float = 0.05, clearance_margin_m: float = 0.002) -> GaitSpec:
     """The :class:`GaitSpec` of a config and the command line's choices.
 
     The step's duration is the config's ``period_s`` over ``steps_per_cycle`` (free for a
     passive gait); the friction cone is designed within ``friction_margin`` times the config's
-    mu (a margin for tracking); the torso is ``base_pitch`` when the config stabilizes it, at its
-    ``target.value`` (``torso_weight``: the weight of its motion, default GaitSpec's). Without
+    mu, the normal force ``normal_force_margin`` m g above ``walking.normal_force_min`` and the
+    swing foot ``clearance_margin_m`` above the ground outside the scuffing zone (margins for
+    tracking errors, none for a passive gait); the torso is ``base_pitch`` when the config
+    stabilizes it, at its ``target.value`` (``torso_weight``: the weight of its motion, default GaitSpec's). Without
     speed or step length, the step length is 0.35 hip heights.
     """
     stance = settings["stance"]
@@ -118,7 +121,8 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
         slope=settings["slope"] if slope is None else slope, passive=passive,
         friction=friction_margin * settings["friction"],
         normal_force_min=settings["normal_force_min"], scuff_exempt_m=settings["scuff_exempt_m"],
-        clearance=not passive,
+        clearance=not passive, clearance_margin_m=0.0 if passive else clearance_margin_m,
+        normal_force_margin=0.0 if passive else normal_force_margin,
         pitch_joint=BASE_JOINTS[2] if pitch_target is not None else None,
         pitch_target=None if pitch_target is None else float(pitch_target))
 

@@ -75,6 +75,10 @@ class GaitSpec:
             foot is exempt from clearance; None: 0.05 with one legs pair (no knees), else 0.
         clearance: Whether to constrain the swing foot's height at all (a passive gait check may
             leave it out, as the closed-form compass gait does).
+        clearance_margin_m: Least swing-foot height in [m] outside the scuffing zone from the
+            third knot to the third last (a margin for tracking errors; 0 at the others).
+        normal_force_margin: Added to ``normal_force_min``, in units of m g (a margin for
+            tracking errors).
         pitch_joint: Base coordinate (normally ``base_pitch`` of a torso-rooted walker) held on
             average at ``pitch_target`` [rad]; None: no torso.
         pitch_target: Mean of the torso's pitch in [rad] (None: free, only its motion penalised).
@@ -98,6 +102,8 @@ class GaitSpec:
     normal_force_min: float = 0.0
     scuff_exempt_m: float | None = None
     clearance: bool = True
+    clearance_margin_m: float = 0.0
+    normal_force_margin: float = 0.0
     pitch_joint: str | None = None
     pitch_target: float | None = None
     pitch_weight: float = 100.0
@@ -357,12 +363,13 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
     knot, interval = _knot_functions(W, spec, B, mg, ell, tau_scale, exempt, dip)
     hk = T / N
     U_all = U if U is not None else ca.DM.zeros(m, N + 1)
-    dyn, stance, fric, clear, effort = knot.map(N + 1)(Q, V, A, F, U_all)
+    dyn, stance, fric, clear, clear_m, effort = knot.map(N + 1)(Q, V, A, F, U_all)
     b.add("dynamics", dyn)
     b.add("stance", stance)
     b.add("friction", fric, 0.0, np.inf)
-    if spec.clearance:
-        b.add("clearance", clear[:, 1:N], 0.0, np.inf)
+    if spec.clearance:  # the margin from the third knot to the third last
+        b.add("clearance", ca.horzcat(clear[:, 1], clear_m[:, 2:N - 1], clear[:, N - 1]), 0.0,
+              np.inf)
     if U is not None:
         weights = np.ones(N + 1)
         weights[[0, N]] = 0.5
@@ -456,7 +463,9 @@ def _knot_functions(W: _Walker, spec: GaitSpec, B: np.ndarray, mg: float, ell: f
     """SX functions of one knot and of one interval, mapped over the knots by the NLP (their
     exact derivatives are built once, not once per knot).
 
-    ``knot(q, v, a, lam, u) -> (dynamics, stance, friction, clearance, effort)``;
+    ``knot(q, v, a, lam, u) -> (dynamics, stance, friction, clearance, clearance with the
+    margin, effort)``; the margin applies fully outside the scuffing zone, fading to 0 at the
+    stance foot;
     ``interval(q0, v0, a0, q1, v1, a1, h) -> collocation residuals``.
     """
     nv, m = W.nv, B.shape[1]
@@ -467,16 +476,19 @@ def _knot_functions(W: _Walker, spec: GaitSpec, B: np.ndarray, mg: float, ell: f
     p_sw = W.feet[spec.swing](qp, v, a)[0]
     gen = ca.mtimes(Js[[0, 2], :].T, lam * mg) + ca.mtimes(B, u)
     dynamics = (W.rnea(qp, v, a) - gen) * tau_scale
-    fmin = spec.normal_force_min / mg
+    fmin = spec.normal_force_min / mg + spec.normal_force_margin
     friction = ca.vertcat(lam[1] - fmin, spec.friction * lam[1] - lam[0],
                           spec.friction * lam[1] + lam[0])
-    allowance = 0.0
+    allowance, outside = 0.0, 1.0
     if exempt > 0:
         dx = (p_sw[0] - p_st[0]) / exempt
         allowance = dip * ca.fmax(0.0, 1.0 - dx * dx)
+        outside = ca.fmin(1.0, dx * dx)
+    clearance = p_sw[2] + allowance
     effort = ca.sumsqr(ca.mtimes(B, u) * tau_scale)
     knot = ca.Function("knot", [q, v, a, lam, u],
-                       [dynamics, dds[[0, 2]] / W.gravity, friction, p_sw[2] + allowance, effort])
+                       [dynamics, dds[[0, 2]] / W.gravity, friction, clearance,
+                        clearance - spec.clearance_margin_m * outside, effort])
     q1, v1, a1, h = ca.SX.sym("q1", nv), ca.SX.sym("v1", nv), ca.SX.sym("a1", nv), ca.SX.sym("h")
     interval = ca.Function("interval", [q, v, a, q1, v1, a1, h], [ca.vertcat(
         v1 - v - h / 2 * (a + a1), q1 - q - h * v - h * h / 6 * (2 * a + a1))])

@@ -317,3 +317,20 @@ def test_a_walker_never_seen_gets_a_gait_from_its_config_alone(tmp_path):
     _check_impact_and_periodicity(walker, spec, gait)
     assert gait.metrics["min_clearance_m"] >= -1e-6  # no scuffing zone with knees
     assert np.mean(gait.q[:, walker.robot.v_index("base_pitch")]) == pytest.approx(0.05)
+
+
+def test_margins_for_tracking_hold_at_the_solution():
+    walker = compass_walker()
+    spec = GaitSpec(slope=0.03, step_length=0.4, duration=0.6, knots=24,
+                    normal_force_margin=0.7, clearance_margin_m=0.004)
+    gait = design_gait(walker, spec)
+    mg = 20.0 * G
+    assert gait.force[:, 1].min() >= 0.7 * mg - 1e-5
+    model = _tilted(walker, spec.slope)
+    data = model.createData()
+    for q in gait.q_pin[2:-2]:
+        pin.framesForwardKinematics(model, data, q)
+        swing = data.oMf[walker.feet["right"]].translation
+        stance = data.oMf[walker.feet["left"]].translation
+        if abs(swing[0] - stance[0]) >= 0.05:  # outside the scuffing zone
+            assert swing[2] >= 0.004 - 1e-7
