@@ -99,8 +99,8 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
     mu, the normal force ``normal_force_margin`` m g above ``walking.normal_force_min`` and the
     swing foot ``clearance_margin_m`` above the ground outside the scuffing zone (margins for
     tracking errors, none for a passive gait); the torso is ``base_pitch`` when the config
-    stabilizes it, at its ``target.value`` (``torso_weight``: the weight of its motion, default GaitSpec's). Without
-    speed or step length, the step length is 0.35 hip heights.
+    stabilizes it, at its ``target.value`` (``torso_weight``: the weight of its motion, default
+    GaitSpec's). Without speed or step length, the step length is 0.35 hip heights.
     """
     stance = settings["stance"]
     joints = raw.get("joints") or {}
