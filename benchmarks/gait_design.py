@@ -31,7 +31,7 @@ CASES = [  # label, config, designer options (as feltool gait's)
     ("compass gait, passive, 3 deg slope", "compass_gait",
      {"passive": True, "slope": float(np.deg2rad(3.0))}),
     ("compass gait, hip motor, 0.03 rad slope", "compass_gait", {"step_length": 0.4}),
-    ("three-link walker (torso 0.1 rad)", "three_link_walker", {"speed": 0.66}),
+    ("three-link walker (torso 0.1 rad)", "three_link_walker", {"speed": 0.8}),
     ("five-link walker with knees", "five_link_walker", {"speed": 0.8}),
 ]
 
