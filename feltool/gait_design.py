@@ -30,7 +30,7 @@ first and second derivatives) and solved by IPOPT:
   horizontally of the stance foot (the scuffing rule of a walker without knees, see
   ``docs/biped.md``), where the foot may dip by up to 10 % of the walker's hip height;
 * the root link (the hip) moving forward throughout the step, :math:`\dot x \ge 0` (a
-  monotonic phase variable for phase-based tracking);
+  monotonic phase variable for phase-based tracking; not for a passive gait);
 * the torso (``pitch_joint``) on average at ``pitch_target``, its deviation penalised.
 
 Cost: :math:`\int u^T u \, dt` (trapezoidal), scaled by :math:`(m g \ell)^{-2}`. ``passive`` fixes
@@ -377,7 +377,8 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
         weights = np.ones(N + 1)
         weights[[0, N]] = 0.5
         cost = cost + hk * ca.dot(ca.vec(effort), weights)
-    b.add("progress", V[W.ix, :], 0.0, np.inf)  # the root (the hip) never moves backwards
+    if not spec.passive:  # the root (the hip) never moves backwards; a passive gait is left to
+        b.add("progress", V[W.ix, :], 0.0, np.inf)  # physics alone
     b.add("collocation", interval.map(N)(Q[:, :N], V[:, :N], A[:, :N], Q[:, 1:], V[:, 1:],
                                          A[:, 1:], hk))
     # Touchdown, impact, relabelling, periodicity.
