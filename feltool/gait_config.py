@@ -183,11 +183,14 @@ def _num(x: float) -> float:
 def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: str) -> None:
     """Write ``config`` as YAML with a header of the gait's figures."""
     m = gait.metrics
+    two = config.get("walking", {}).get("steps_per_cycle", 1) == 2
+    labels = ("two steps in the first step's labels" if two
+              else "one step in stance-relative labels")
     header = (f"# Gait designed by: {command}\n"
-              f"# period {m['period_s']:.4g} s, speed {m['speed_m_per_s']:.4g} m/s, step length "
+              f"# step {m['period_s']:.4g} s, speed {m['speed_m_per_s']:.4g} m/s, step length "
               f"{m['step_length_m']:.4g} m, cost of transport {m['cost_of_transport']:.3g},\n"
               f"# min F_n {m['min_normal_force_mg']:.3g} mg, max |F_t|/F_n "
               f"{m['max_friction_ratio']:.3g}, impulse ratio {m['impulse_ratio']:.3g}; demos: "
-              "one step in stance-relative labels (kind: samples).\n")
+              f"{labels} (kind: samples).\n")
     text = yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=100)
     Path(path).write_text(header + text)
