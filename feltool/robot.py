@@ -6,6 +6,7 @@ where it came from and the joint-name bookkeeping the rest of feltool needs.
 
 from __future__ import annotations
 
+import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,6 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.errors import RobotError
+from feltool.physical import inertia_problem, mass_problem
 
 ERD_PREFIX = "example-robot-data:"
 
@@ -231,6 +233,8 @@ def _check_urdf_xml(text: str, where: str, base: Path | None = None,
                 raise RobotError(f"{where}: the joints form a cycle through <link name=\"{link}\">;"
                                  " a URDF must be a tree")
             seen.add(link)
+    _check_numbers(root, where)
+    _check_physics(root, where)
     if base is not None:
         _check_meshes(root, where, base, package_dirs or [])
 
@@ -259,23 +263,45 @@ def _check_urdf_xml(text: str, where: str, base: Path | None = None,
             )
 
 
+def _mesh_candidates(filename: str, base: Path,
+                     package_dirs: list[str]) -> list[tuple[Path, list[Path]]]:
+    """Files a mesh reference may mean, each with the folders it must stay inside."""
+    roots = [Path(base)] + [Path(d) for d in package_dirs]
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):].lstrip("/")
+        package, _, inner = rest.partition("/")
+        out = []
+        for d in map(Path, package_dirs):
+            out += [(d / rest, [d]), (d / inner, [d]), (d.parent / rest, [d.parent / package])]
+        return out
+    if filename.startswith("file://"):
+        return [(Path(filename[len("file://"):]), roots)]
+    return [(Path(base) / filename, roots)]
+
+
+def _inside(path: Path, roots: list[Path]) -> bool:
+    """Whether ``path`` lies inside one of ``roots``, judged on the normalised path text (so a
+    ``../`` cannot climb out, while a symbolic link inside a root stays allowed)."""
+    target = os.path.normpath(os.path.abspath(path))
+    for root in roots:
+        top = os.path.normpath(os.path.abspath(root))
+        if target == top or target.startswith(top.rstrip(os.sep) + os.sep):
+            return True
+    return False
+
+
 def resolve_mesh(filename: str, base: Path, package_dirs: list[str]) -> Path | None:
     """The file a URDF mesh reference points to (``package://``, ``file://``, relative to the
-    URDF, or absolute), or None when it does not exist."""
-    candidates: list[Path] = []
-    if filename.startswith("package://"):
-        rest = filename[len("package://"):]
-        package, _, inner = rest.partition("/")
-        for d in package_dirs:
-            candidates += [Path(d) / rest, Path(d) / inner, Path(d).parent / rest]
-    elif filename.startswith("file://"):
-        candidates.append(Path(filename[len("file://"):]))
-    else:
-        candidates.append(base / filename)
-    return next((c for c in candidates if c.is_file()), None)
+    URDF, or absolute), or None when it does not exist or lies outside the URDF's folder and
+    the package dirs."""
+    return next((c for c, roots in _mesh_candidates(filename, base, package_dirs)
+                 if c.is_file() and _inside(c, roots)), None)
 
 
 def _check_meshes(root, where: str, base: Path, package_dirs: list[str]) -> None:
+    """Every mesh file exists and lies inside the URDF's folder or a package dir: a path that
+    climbs out (``../../elsewhere``) is refused, so a URDF cannot make feltool (or the mesh
+    loader behind the viewer) read arbitrary files."""
     for link in root.findall("link"):
         for kind in ("visual", "collision"):
             for element in link.findall(kind):
@@ -283,10 +309,95 @@ def _check_meshes(root, where: str, base: Path, package_dirs: list[str]) -> None
                 if mesh is None:
                     continue
                 filename = mesh.get("filename", "")
-                if resolve_mesh(filename, base, package_dirs) is None:
+                if resolve_mesh(filename, base, package_dirs) is not None:
+                    continue
+                if any(not _inside(c, roots)
+                       for c, roots in _mesh_candidates(filename, base, package_dirs)):
                     raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
-                                     f"'{filename}' not found (looked relative to {base} and in "
-                                     f"package dirs {package_dirs})")
+                                     f"'{filename}' lies outside the URDF's folder "
+                                     f"{os.path.abspath(base)} and the package dirs "
+                                     f"{package_dirs}; refusing to read it (put the mesh there, "
+                                     "or add its folder to package_dirs)")
+                raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
+                                 f"'{filename}' not found (looked relative to {base} and in "
+                                 f"package dirs {package_dirs})")
+
+
+#: Numeric attributes of URDF elements (inside a <link> or <joint>), each a list of numbers.
+_NUMERIC = {
+    "origin": ("xyz", "rpy"), "axis": ("xyz",), "mass": ("value",),
+    "inertia": ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"),
+    "limit": ("lower", "upper", "effort", "velocity"), "dynamics": ("damping", "friction"),
+    "safety_controller": ("soft_lower_limit", "soft_upper_limit", "k_position", "k_velocity"),
+    "calibration": ("rising", "falling"), "mimic": ("multiplier", "offset"),
+    "box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",), "mesh": ("scale",),
+}
+
+
+def _owner(element) -> str:
+    return f"<{element.tag} name=\"{element.get('name')}\">"
+
+
+def _numbers(owner, el, attr: str, where: str) -> list[float] | None:
+    text = el.get(attr)
+    if text is None:
+        return None
+    try:
+        values = [float(x) for x in text.split()]
+    except ValueError:
+        raise RobotError(f"{where}: {_owner(owner)} <{el.tag} {attr}=\"{text}\">: not a number"
+                         ) from None
+    if not all(np.isfinite(values)):
+        raise RobotError(f"{where}: {_owner(owner)} <{el.tag} {attr}=\"{text}\">: not a finite "
+                         "number (NaN and infinity are not physical values)")
+    return values
+
+
+def _check_numbers(root, where: str) -> None:
+    """Every number of every link and joint parses and is finite (urdfdom reads ``nan`` and
+    ``inf`` in some places and not others)."""
+    for owner in root.findall("link") + root.findall("joint"):
+        for el in owner.iter():
+            for attr in _NUMERIC.get(el.tag, ()):
+                _numbers(owner, el, attr, where)
+
+
+def _check_physics(root, where: str) -> None:
+    """Masses, inertias (:mod:`feltool.physical`), joint axes and limits that a real robot can
+    have; each problem names the element."""
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        mass = inertial.find("mass")
+        if mass is not None:
+            problem = mass_problem(float(mass.get("value", "0")), allow_zero=True)
+            if problem:
+                raise RobotError(f"{where}: {_owner(link)} <inertial>: {problem}")
+        inertia = inertial.find("inertia")
+        if inertia is not None:
+            values = [float(inertia.get(k, "0")) for k in _NUMERIC["inertia"]]
+            problem = inertia_problem(values)
+            if problem:
+                raise RobotError(f"{where}: {_owner(link)} <inertial> <inertia>: {problem}")
+    for joint in root.findall("joint"):
+        kind = joint.get("type")
+        axis = joint.find("axis")
+        if kind in ("revolute", "continuous", "prismatic") and axis is not None:
+            xyz = _numbers(joint, axis, "xyz", where)
+            if xyz is None or len(xyz) != 3:
+                raise RobotError(f"{where}: {_owner(joint)} <axis>: needs xyz with 3 numbers")
+            if float(np.linalg.norm(xyz)) < 1e-12:
+                raise RobotError(f"{where}: {_owner(joint)} <axis xyz=\"{axis.get('xyz')}\">: "
+                                 "the zero vector is no axis (a non-unit axis is normalised, as "
+                                 "Pinocchio does)")
+        limit = joint.find("limit")
+        if limit is not None:
+            for attr in ("effort", "velocity"):
+                value = _numbers(joint, limit, attr, where)
+                if value is not None and value[0] < 0:
+                    raise RobotError(f"{where}: {_owner(joint)} <limit {attr}=\""
+                                     f"{limit.get(attr)}\">: must be at least 0 (0 = no limit)")
 
 
 def _subtree_has_mass(name, children, link_mass) -> bool:
