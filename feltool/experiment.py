@@ -21,6 +21,7 @@ from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.events import check_events
 from feltool.fel import FeedbackErrorLearner
 from feltool.hybrid import Allocation, HybridLoop, Walker
+from feltool.memory import check_memory
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
@@ -228,6 +229,8 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     locked = {n: 0.0 for n in full_robot.joint_names if n not in cfg.joints}
     locked.update({n: jc.posture for n, jc in cfg.joints.items() if jc.role == "locked"})
     robot = reduce_robot(full_robot, locked)
+    # Before the per-sample arrays exist: refuse a run the machine cannot hold.
+    check_memory(cfg, robot.joint_names, robot.model.njoints - 1, str(source) if source else None)
     robot.set_gravity(cfg.gravity)
     dynamics = make_dynamics(robot.model, "casadi" if cfg.backend == "casadi" else "pinocchio")
     nv = robot.model.nv

@@ -424,7 +424,21 @@ def _load_erd(name: str, source: str) -> Robot:
     robot = Robot(name=name, model=wrapper.model, source=source, urdf_path=urdf,
                   package_dirs=[str(urdf.parent)] if urdf else [])
     robot._visual_model = wrapper.visual_model
+    _check_model_numbers(robot.model, f"example-robot-data robot '{name}'")
     return robot
+
+
+def _check_model_numbers(model: pin.Model, where: str) -> None:
+    """Finite, non-negative masses and finite inertias of a model built elsewhere (the
+    example-robot-data robots are taken as shipped: several of them, e.g. go1 and pr2, have
+    inertias that violate the triangle inequality, which URDF files given by path may not)."""
+    for jid in range(1, model.njoints):
+        inertia = model.inertias[jid]
+        problem = mass_problem(float(inertia.mass), allow_zero=True)
+        if problem is None and not np.all(np.isfinite(inertia.inertia)):
+            problem = "its rotational inertia has an entry that is not a finite number"
+        if problem:
+            raise RobotError(f"{where}: the body moved by joint '{model.names[jid]}': {problem}")
 
 
 def describe(robot: Robot) -> dict:
