@@ -744,6 +744,7 @@ def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
                     "too_long": "longer than"}[err["type"]]
             given = f"{len(err['input'])} items" if err["type"] == "too_long" else \
                 str(err["input"])
+            limit = f"{limit:g}" if isinstance(limit, float) else limit
             msg = f"{given} is {what} the limit {limit} (see docs/configuration.md)"
         problems.append((_loc(loc), msg))
     # A union (e.g. seeds: int | list) reports one error per branch: a list given where the

@@ -316,7 +316,8 @@ def _check_meshes(root, where: str, base: Path, package_dirs: list[str]) -> None
                     raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
                                      f"'{filename}' lies outside the URDF's folder "
                                      f"{os.path.abspath(base)} and the package dirs "
-                                     f"{package_dirs}; refusing to read it (put the mesh there, "
+                                     f"{[d for d in package_dirs if d != str(base)]}; refusing "
+                                     "to read it (put the mesh there, "
                                      "or add its folder to package_dirs)")
                 raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
                                  f"'{filename}' not found (looked relative to {base} and in "

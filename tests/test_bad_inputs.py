@@ -48,3 +48,67 @@ def test_a_bad_input_as_a_user_sees_it(tmp_path):
     res = feltool("run", str(CASES[0]), "--out", str(tmp_path / "x"))
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert res.stderr.startswith("feltool: error: ")
+
+
+# -- cases that are made at test time (too big to keep) or come from the command line -----------
+
+STANDARD = Path(__file__).resolve().parent.parent / "configs" / "two_link_standard.yaml"
+
+
+def _run(args, capsys):
+    code = main(args)
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err + captured.out
+    return code, captured.err
+
+
+def test_a_giant_config_file_is_refused_before_it_is_parsed(tmp_path, capsys):
+    big = tmp_path / "giant.yaml"
+    big.write_text(STANDARD.read_text() + "description: " + "x" * (2 << 20) + "\n")
+    code, err = _run(["run", str(big), "--out", str(tmp_path / "run"), "--no-progress"], capsys)
+    assert code == 2 and "a config may have at most 1048576" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("seeds, needle", [
+    ("0-1000000000", "'0-1000000000' is 1000000001 seeds; at most 100000"),
+    ("0,0,1", "seed 0 given more than once"),
+    ("0-5,3", "seed 3 given more than once"),
+    ("99999999999999999999", "a seed may be at most 9223372036854775807"),
+])
+def test_bad_seed_lists_on_the_command_line(seeds, needle, tmp_path, capsys):
+    code, err = _run(["run", str(STANDARD), "--seeds", seeds, "--out", str(tmp_path / "run"),
+                      "--no-progress"], capsys)
+    assert code == 2 and needle in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("override, needle", [
+    ("sweep={grid: {a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1], b: [*a, *a, *a, *a, *a, *a, *a, *a, "
+     "*a, *a], c: &c [*a, *a, *a, *a, *a, *a, *a, *a, *a, *a]}}", None),
+    ("sim.cycles=on", "sim.cycles: a boolean"),
+    ("seeds=[3, 3]", "seed 3 given more than once"),
+    ("sim.rate_hz=1e400", "sim.rate_hz"),
+])
+def test_bad_overrides_on_the_command_line(override, needle, tmp_path, capsys):
+    """--set values are YAML too and get the same bounds; a small alias use stays fine."""
+    code, err = _run(["check", str(STANDARD), "--set", override], capsys)
+    if needle is None:
+        assert code == 0, err
+    else:
+        assert code == 2 and needle in err, err
+
+
+def test_a_bomb_in_an_override_is_refused(capsys):
+    levels = ["a: &a [x, x, x, x, x, x, x, x, x]"] + [
+        f"{c}: &{c} [" + ", ".join([f"*{p}"] * 9) + "]" for p, c in zip("abcdefgh", "bcdefghi")]
+    code, err = _run(["check", str(STANDARD), "--set", "sweep={grid: {" + ", ".join(levels)
+                      + "}}"], capsys)
+    assert code == 2 and "--set: sweep: refused: more than 100000 values" in err, err
+
+
+def test_the_bundled_configs_pass_the_new_bounds(capsys):
+    for path in sorted(STANDARD.parent.glob("*.yaml")):
+        code, err = _run(["check", str(path)], capsys)
+        assert code == 0, (path, err)
