@@ -32,6 +32,12 @@ MAX_SEEDS = 100_000         # seeds of one run
 MAX_SEED = 2**63 - 1        # a seed value (int64, as metrics.csv stores it)
 MAX_ABS_GRAVITY = 1000.0    # each gravity component [m/s^2] (about 100 g)
 MAX_HARMONICS = 50          # higher harmonics of a sine demo
+MAX_ANGLE = 1.0e4           # angles and positions of demos, targets, postures [rad] or [m]
+MAX_LENGTH = 1.0e3          # centre-of-mass offsets [m]
+MAX_MASS = 1.0e6            # masses of plant overrides, payloads, events [kg]
+MAX_MASS_SCALE = 1.0e6      # plant.bodies.*.mass_scale [-]
+MAX_WEIGHT_SCALE = 100.0    # learn.weight_scale [-]
+MAX_DAMPING = 1.0e6         # Levenberg-Marquardt damping [-]
 
 #: Fraction of the available memory a planned run may use (see :mod:`feltool.memory`).
 MEMORY_FRACTION = 0.8

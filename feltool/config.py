@@ -29,16 +29,22 @@ from feltool.bounds import (
     MAX_ABS_GRAVITY,
     MAX_ALPHA,
     MAX_AMPLITUDE,
+    MAX_ANGLE,
     MAX_CONFIG_BYTES,
     MAX_CYCLES,
+    MAX_DAMPING,
     MAX_GAIN,
     MAX_HARMONICS,
+    MAX_LENGTH,
+    MAX_MASS,
+    MAX_MASS_SCALE,
     MAX_PERIOD_S,
     MAX_RATE,
     MAX_RATE_HZ,
     MAX_SEED,
     MAX_SEEDS,
     MAX_STEPS_PER_CYCLE,
+    MAX_WEIGHT_SCALE,
     MAX_WIDTH,
 )
 from feltool.errors import ConfigError
@@ -48,6 +54,8 @@ from feltool.safe_yaml import YamlBoundError, load_yaml
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Angle = Annotated[float, Field(ge=-MAX_ANGLE, le=MAX_ANGLE, allow_inf_nan=False)]
+Length = Annotated[float, Field(ge=-MAX_LENGTH, le=MAX_LENGTH, allow_inf_nan=False)]
 Gravity = Annotated[float, Field(ge=-MAX_ABS_GRAVITY, le=MAX_ABS_GRAVITY, allow_inf_nan=False)]
 
 
@@ -170,10 +178,10 @@ class SineDemo(Strict):
     with w = 2 pi / T, s = t - delay T and k = 2, 3, ... for the entries of ``harmonics``."""
 
     kind: Literal["sine"] = Field(description="Demonstration kind.")
-    mean: FiniteFloat = Field(0.0, description="Mean (the RMP goal) in [rad].")
-    amplitude: FiniteFloat = Field(description="Amplitude in [rad].")
+    mean: Angle = Field(0.0, description=f"Mean (the RMP goal) in [rad]; within +-{MAX_ANGLE:g}.")
+    amplitude: Angle = Field(description=f"Amplitude in [rad]; within +-{MAX_ANGLE:g}.")
     phase: FiniteFloat = Field(0.0, description="Phase offset in [rad] at the start of a cycle.")
-    harmonics: list[tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=list,
+    harmonics: list[tuple[Angle, FiniteFloat]] = Field(default_factory=list,
         max_length=MAX_HARMONICS, description="Higher harmonics k = 2, 3, ...: [amplitude in "
         f"[rad], phase in [rad]] each; at most {MAX_HARMONICS}.")
     delay: FiniteFloat = Field(0.0, description="Delay of the whole demonstration, as a "
@@ -198,7 +206,8 @@ class Target(Strict):
     orientation of any frame about a world axis (its torque then acts through the frame
     Jacobian on every joint that moves the frame)."""
 
-    value: FiniteFloat = Field(description="Target value of the stabilized quantity in [rad].")
+    value: Angle = Field(description="Target value of the stabilized quantity in [rad]; "
+                         f"within +-{MAX_ANGLE:g}.")
     link_angle: list[str] | None = Field(None, min_length=1, description="Joints whose angles "
                                          "add up to the stabilized link's absolute angle, e.g. "
                                          "[shoulder, elbow] for q1 + q2; default the joint itself.")
@@ -226,11 +235,13 @@ class LearnConfig(Strict):
 
     init: Literal["random", "demo", "zero"] = Field("random", description="Initial weights: "
                                                    "random (from the seed), the demo's fit, or zero.")
-    weight_scale: NonNegFloat = Field(0.3, description="Random initial weights ~ N(0, s^2) with "
-                                      "s = weight_scale * max |w| over the demo-fitted primitives [-].")
-    goal_spread: NonNegFloat = Field(0.3, description="Random initial goal uniform in goal_center "
-                                     "+- goal_spread, in [rad].")
-    goal_center: FiniteFloat | None = Field(None, description="Centre of the initial goal in [rad]; "
+    weight_scale: NonNegFloat = Field(0.3, le=MAX_WEIGHT_SCALE, description="Random initial "
+                                      "weights ~ N(0, s^2) with s = weight_scale * max |w| over "
+                                      "the demo-fitted primitives [-]; at most "
+                                      f"{MAX_WEIGHT_SCALE:g}.")
+    goal_spread: NonNegFloat = Field(0.3, le=MAX_ANGLE, description="Random initial goal uniform "
+                                     f"in goal_center +- goal_spread, in [rad]; at most {MAX_ANGLE:g}.")
+    goal_center: Angle | None = Field(None, description="Centre of the initial goal in [rad]; "
                                             "default: the value that meets the joint's target with "
                                             "the other joints at their goals (or the demo's mean).")
 
@@ -249,7 +260,8 @@ class JointConfig(Strict):
     target: Target | None = Field(None, description="Stabilized quantity (stabilize only).")
     learn: LearnConfig | None = Field(None, description="Learn this joint's RMP by FEL.")
     primitive: PrimitiveOverride | None = Field(None, description="Per-joint RMP settings.")
-    posture: FiniteFloat = Field(0.0, description="Angle a locked joint is held at, in [rad].")
+    posture: Angle = Field(0.0, description="Angle a locked joint is held at, in [rad]; within "
+                           f"+-{MAX_ANGLE:g}.")
 
     @model_validator(mode="after")
     def _role_fields(self) -> JointConfig:
@@ -287,7 +299,7 @@ class ModelLearningConfig(Strict):
         "(leaves the stabilizing feedback to trajectory FEL when both run), or a list of joints.")
     basis: int = Field(20, ge=1, le=1000, description="Number of phase basis functions per "
                        "joint (phase_basis only).")
-    width: PositiveFloat | None = Field(None, description="Width h of the phase basis [-] "
+    width: PositiveFloat | None = Field(None, le=MAX_WIDTH, description="Width h of the phase basis [-] "
                                         "(phase_basis only); default basis / 2.")
     update: Literal["gradient", "gauss_newton"] = Field("gradient", description="gradient: "
         "eq. 3.4, theta_m += rate * sum_k Phi_k^T e_k; gauss_newton: the Levenberg-Marquardt "
@@ -300,9 +312,10 @@ class ModelLearningConfig(Strict):
         "the features): gradient: per sample and cycle, in [theta_m unit / (N m)^2] -- stable "
         "below 2 / (largest eigenvalue of sum_k Phi_k^T Phi_k); gauss_newton: the fraction of the "
         "Levenberg-Marquardt step [-]. See docs/model_learning.md.")
-    damping: PositiveFloat = Field(1.0e-6, description="Levenberg-Marquardt damping, relative "
-                                   "to the mean diagonal of Phi^T Phi [-]; directions the motion "
-                                   "does not excite are then left unchanged.")
+    damping: PositiveFloat = Field(1.0e-6, le=MAX_DAMPING, description="Levenberg-Marquardt "
+                                   "damping, relative to the mean diagonal of Phi^T Phi [-]; "
+                                   "directions the motion does not excite are then left "
+                                   f"unchanged; at most {MAX_DAMPING:g}.")
     jacobian: Literal["learned", "nominal"] = Field("learned", description="Inverse model whose "
         "derivatives the trajectory learner's Jacobian uses when both learn: learned = the known "
         "model plus the current correction (chain rule through Phi theta_m; regressor features "
@@ -313,11 +326,11 @@ class BodyOverride(Strict):
     """The plant's physical parameters of one body: the rigid body moved by a joint (with every
     link welded to it). Unset fields keep the model's values."""
 
-    mass_scale: PositiveFloat | None = Field(None, description="Scale mass and rotational "
+    mass_scale: PositiveFloat | None = Field(None, le=MAX_MASS_SCALE, description="Scale mass and rotational "
         "inertia together (a uniformly denser body; the centre of mass stays) [-].")
-    mass: PositiveFloat | None = Field(None, description="Mass in [kg] (rotational inertia "
+    mass: PositiveFloat | None = Field(None, le=MAX_MASS, description="Mass in [kg] (rotational inertia "
                                        "unchanged unless `inertia` is given).")
-    com: list[FiniteFloat] | None = Field(None, min_length=3, max_length=3, description="Centre "
+    com: list[Length] | None = Field(None, min_length=3, max_length=3, description="Centre "
                                           "of mass in the joint's frame, [x, y, z] in [m].")
     inertia: list[FiniteFloat] | None = Field(None, min_length=6, max_length=6, description=""
         "Rotational inertia about the centre of mass, [ixx, ixy, ixz, iyy, iyz, izz] in "
@@ -347,8 +360,8 @@ class Payload(Strict):
     """A rigid payload fixed to a frame of the plant (e.g. a tool at the arm's tip)."""
 
     frame: str = Field(min_length=1, description="URDF link (or Pinocchio frame) it is fixed to.")
-    mass: PositiveFloat = Field(description="Mass in [kg].")
-    com: list[FiniteFloat] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
+    mass: PositiveFloat = Field(le=MAX_MASS, description=f"Mass in [kg]; at most {MAX_MASS:g}.")
+    com: list[Length] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
                                    description="Centre of mass in that frame, [x, y, z] in [m].")
     inertia: list[FiniteFloat] = Field([0.0] * 6, min_length=6, max_length=6, description=""
         "Rotational inertia about its centre of mass, [ixx, ixy, ixz, iyy, iyz, izz] in "
@@ -364,8 +377,10 @@ class JointFriction(Strict):
     """Joint friction of the plant, tau_f = viscous * v + coulomb * tanh(v / coulomb_velocity),
     opposing the motion (the known model has none)."""
 
-    viscous: NonNegFloat = Field(0.0, description="Viscous damping in [N m s/rad].")
-    coulomb: NonNegFloat = Field(0.0, description="Coulomb friction level in [N m].")
+    viscous: NonNegFloat = Field(0.0, le=MAX_GAIN, description="Viscous damping in [N m s/rad]; "
+                                 f"at most {MAX_GAIN:g}.")
+    coulomb: NonNegFloat = Field(0.0, le=MAX_GAIN, description="Coulomb friction level in [N m]; "
+                                 f"at most {MAX_GAIN:g}.")
     coulomb_velocity: PositiveFloat = Field(0.01, description="Velocity scale of the smooth "
                                             "Coulomb term in [rad/s].")
 
@@ -406,14 +421,15 @@ class LearningConfig(Strict):
     step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
         "cycle (the RMP is then reset onto its new limit cycle) or after every control step.")
     rates: Rates = Field(default_factory=Rates, description="Learning rates.")
-    damping: PositiveFloat = Field(1.0e-2, description="Levenberg-Marquardt damping, relative to "
-                                   "the mean diagonal of J^T J [-].")
+    damping: PositiveFloat = Field(1.0e-2, le=MAX_DAMPING, description="Levenberg-Marquardt "
+                                   "damping, relative to the mean diagonal of J^T J [-]; at most "
+                                   f"{MAX_DAMPING:g}.")
     sensitivity: Literal["exact", "finite_difference", "casadi"] = Field("exact", description=
         "How d u_ff / d theta is computed: exact (RMP sensitivity x Pinocchio's RNEA "
         "derivatives), the thesis's numerical differentiation, or CasADi's algorithmic "
         "differentiation through the RMP and a symbolic RNEA.")
-    fd_epsilon: PositiveFloat = Field(1.0e-6, description="Finite-difference step, relative "
-                                      "to max(1, |theta_i|) [-].")
+    fd_epsilon: PositiveFloat = Field(1.0e-6, le=1.0, description="Finite-difference step, "
+                                      "relative to max(1, |theta_i|) [-]; at most 1.")
     impact_window_s: NonNegFloat = Field(0.0, description="Walkers only: leave the error "
         "signal's samples within this time after every impact out of the update (the impact's "
         "velocity jump makes a feedback spike that no smooth RMP can remove) [s]; 0 = off.")
@@ -517,9 +533,10 @@ class EventConfig(Strict):
         "ground) by `angle` about the world's y axis; payload: add a point mass `mass` at "
         "`frame`; mass: set the mass of the body moved by the joint of `link` to `mass` "
         "(its inertia scaled alike).")
-    angle: FiniteFloat | None = Field(None, description="Slope angle in [rad] (kind slope); "
+    angle: Angle | None = Field(None, description="Slope angle in [rad] (kind slope); "
                                       "positive tilts gravity towards +x (downhill ahead).")
-    mass: NonNegFloat | None = Field(None, description="Mass in [kg] (payload, mass).")
+    mass: NonNegFloat | None = Field(None, le=MAX_MASS, description="Mass in [kg] (payload, "
+                                     f"mass); at most {MAX_MASS:g}.")
     frame: str | None = Field(None, description="URDF link/frame carrying the payload.")
     link: str | None = Field(None, description="URDF link whose mass is set (kind mass).")
 

@@ -7,7 +7,7 @@ d u_ff / d theta is n x nv x P_learned (with its temporaries about 6 copies), th
 model's derivatives n x nv x nv (about 4), the cycle's log and recorded traces about 30 numbers
 per sample and joint, and model learning's features n x nv x P_model (about 3 copies). The
 estimate is an upper bound of these (measured against the peak resident size in
-tests/test_bad_inputs.py); :func:`check_memory` refuses a run whose one process would need more
+tests/test_physical.py); :func:`check_memory` refuses a run whose one process would need more
 than :data:`~feltool.bounds.MEMORY_FRACTION` of the memory available.
 """
 
@@ -80,15 +80,19 @@ def _gib(b: float) -> str:
 
 
 def check_memory(cfg: ExperimentConfig, joints: list[str], n_bodies: int,
-                 source: str | None = None) -> int:
-    """The estimate of :func:`estimate_bytes`; raises :class:`ConfigError` (naming period_s
-    and sim.rate_hz, the sizes that drive it) when it exceeds the memory available."""
+                 source: str | None = None, processes: int = 1) -> int:
+    """The estimate of :func:`estimate_bytes` for ``processes`` seeds at once; raises
+    :class:`ConfigError` (naming period_s and sim.rate_hz, the sizes that drive it) when it
+    exceeds :data:`~feltool.bounds.MEMORY_FRACTION` of the memory available. Returns the bytes
+    one process needs."""
     need = estimate_bytes(cfg, joints, n_bodies)
     have = available_bytes()
-    if have is not None and need > MEMORY_FRACTION * have:
-        raise ConfigError([("period_s", f"this run needs about {_gib(need)} per process "
+    if have is not None and need * processes > MEMORY_FRACTION * have:
+        many = f" x {processes} processes" if processes > 1 else ""
+        raise ConfigError([("period_s", f"this run needs about {_gib(need)} per process{many} "
                             f"({cfg.steps_per_cycle} samples per cycle (period_s * sim.rate_hz) "
                             f"x {len(joints)} joints x their RMP parameters), more than "
                             f"{MEMORY_FRACTION:.0%} of the {_gib(have)} available; use a "
-                            "shorter period, a lower rate or fewer basis functions")], source)
+                            "shorter period, a lower rate or fewer basis functions"
+                            + (" (or fewer --workers)" if processes > 1 else ""))], source)
     return need
