@@ -31,6 +31,7 @@ MAX_RATE = 1.0e6            # learning rates
 MAX_SEEDS = 100_000         # seeds of one run
 MAX_SEED = 2**63 - 1        # a seed value (int64, as metrics.csv stores it)
 MAX_ABS_GRAVITY = 1000.0    # each gravity component [m/s^2] (about 100 g)
+MAX_SWEEP_POINTS = 10_000   # points of a sweep grid
 MAX_HARMONICS = 50          # higher harmonics of a sine demo
 MAX_ANGLE = 1.0e4           # angles and positions of demos, targets, postures [rad] or [m]
 MAX_LENGTH = 1.0e3          # centre-of-mass offsets [m]

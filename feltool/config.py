@@ -44,6 +44,7 @@ from feltool.bounds import (
     MAX_SEED,
     MAX_SEEDS,
     MAX_STEPS_PER_CYCLE,
+    MAX_SWEEP_POINTS,
     MAX_WEIGHT_SCALE,
     MAX_WIDTH,
 )
@@ -554,7 +555,8 @@ class SweepConfig(Strict):
 
     grid: dict[str, list[Any]] = Field(default_factory=dict, description="Dotted config paths "
                                        "and the values to try, e.g. {learning.rates.weights: "
-                                       "[0.1, 0.2]}; the product of all is run.")
+                                       "[0.1, 0.2]}; the product of all is run (at most "
+                                       f"{MAX_SWEEP_POINTS} points).")
 
 
 class ExperimentConfig(Strict):
@@ -753,12 +755,12 @@ def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
             msg = "unknown field (check the spelling; see docs/configuration.md)"
         elif err["type"] == "missing":
             msg = "required field is missing"
-        elif err["type"] in ("less_than_equal", "greater_than_equal", "too_long") and \
+        elif err["type"] in ("less_than_equal", "too_long") and \
                 not isinstance(err.get("input"), dict):
+            # feltool's upper bounds (feltool/bounds.py), stated with the value given
             bound = err.get("ctx", {})
-            limit = bound.get("le", bound.get("ge", bound.get("max_length")))
-            what = {"less_than_equal": "above", "greater_than_equal": "below",
-                    "too_long": "longer than"}[err["type"]]
+            limit = bound.get("le", bound.get("max_length"))
+            what = {"less_than_equal": "above", "too_long": "longer than"}[err["type"]]
             given = f"{len(err['input'])} items" if err["type"] == "too_long" else \
                 str(err["input"])
             limit = f"{limit:g}" if isinstance(limit, float) else limit
