@@ -12,6 +12,8 @@ from __future__ import annotations
 # -- the YAML file -------------------------------------------------------------------------------
 #: Largest config file in [bytes] (a config is a few kB; a sweep grid a few more).
 MAX_CONFIG_BYTES = 1 << 20
+#: Largest URDF file in [bytes] (the biggest of example-robot-data has 0.2 MB).
+MAX_URDF_BYTES = 32 << 20
 #: Deepest nesting of mappings and lists (a config nests about 5 deep).
 MAX_YAML_DEPTH = 40
 #: Most values after expanding aliases (``*name``): an "alias bomb" expands a few lines into

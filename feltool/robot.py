@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from feltool.bounds import MAX_URDF_BYTES
 from feltool.errors import RobotError
 from feltool.physical import inertia_problem, mass_problem
 
@@ -154,6 +155,11 @@ def load_urdf(path: Path, source: str | None = None, name: str | None = None,
     if not path.is_file():
         raise RobotError(f"URDF file not found: {path}")
     try:
+        size = path.stat().st_size
+        if size > MAX_URDF_BYTES:
+            raise RobotError(f"{path}: the file has {size} bytes; a URDF may have at most "
+                             f"{MAX_URDF_BYTES} (feltool's limit; meshes belong in their own "
+                             "files)")
         text = path.read_text()
     except UnicodeDecodeError:
         raise RobotError(f"{path}: the file is binary (not UTF-8 text), not a URDF") from None

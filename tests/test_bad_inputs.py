@@ -112,3 +112,13 @@ def test_the_bundled_configs_pass_the_new_bounds(capsys):
     for path in sorted(STANDARD.parent.glob("*.yaml")):
         code, err = _run(["check", str(path)], capsys)
         assert code == 0, (path, err)
+
+
+def test_a_giant_urdf_is_refused_before_it_is_read(tmp_path, capsys):
+    arm = (STANDARD.parent.parent / "robots" / "two_link_arm.urdf").read_text()
+    (tmp_path / "giant.urdf").write_text(arm.replace("<robot", "<!--" + "x" * (33 << 20)
+                                                     + "-->\n<robot", 1))
+    config = tmp_path / "giant.yaml"
+    config.write_text(STANDARD.read_text().replace("robot: two_link_arm", "robot: giant.urdf"))
+    code, err = _run(["check", str(config)], capsys)
+    assert code == 2 and "a URDF may have at most 33554432" in err, err
