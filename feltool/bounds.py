@@ -14,6 +14,9 @@ from __future__ import annotations
 MAX_CONFIG_BYTES = 1 << 20
 #: Largest URDF file in [bytes] (the biggest of example-robot-data has 0.2 MB).
 MAX_URDF_BYTES = 32 << 20
+#: Most links of a URDF (humanoids with hands have about 100; thousands of links in a chain
+#: overflow the recursion of the URDF parser behind Pinocchio).
+MAX_URDF_LINKS = 1000
 #: Deepest nesting of mappings and lists (a config nests about 5 deep).
 MAX_YAML_DEPTH = 40
 #: Most values after expanding aliases (``*name``): an "alias bomb" expands a few lines into

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from feltool.bounds import MAX_URDF_BYTES
+from feltool.bounds import MAX_URDF_BYTES, MAX_URDF_LINKS
 from feltool.errors import RobotError
 from feltool.physical import inertia_problem, mass_problem
 
@@ -209,6 +209,9 @@ def _check_urdf_xml(text: str, where: str, base: Path | None = None,
     links = {link.get("name"): link for link in root.findall("link")}
     if not links:
         raise RobotError(f"{where}: <robot> has no <link> elements")
+    if len(links) > MAX_URDF_LINKS:
+        raise RobotError(f"{where}: <robot> has {len(links)} links; feltool loads at most "
+                         f"{MAX_URDF_LINKS} (a real robot has a few dozen)")
     children: dict[str, list[tuple[str, str]]] = {}
     for joint in root.findall("joint"):
         jname = joint.get("name")
@@ -254,8 +257,14 @@ def _check_urdf_xml(text: str, where: str, base: Path | None = None,
                              f"number: '{mass.get('value')}'") from None
 
     def body_mass(name: str) -> float:
-        """Mass of a link and everything welded to it by fixed joints."""
-        return link_mass(name) + sum(body_mass(c) for c, t in children.get(name, []) if t == "fixed")
+        """Mass of a link and everything welded to it by fixed joints (iteratively: a long
+        chain must not exhaust Python's recursion)."""
+        total, stack = 0.0, [name]
+        while stack:
+            link = stack.pop()
+            total += link_mass(link)
+            stack += [c for c, t in children.get(link, []) if t == "fixed"]
+        return total
 
     for joint in root.findall("joint"):
         if joint.get("type") in ("fixed", None):
@@ -408,8 +417,13 @@ def _check_physics(root, where: str) -> None:
 
 
 def _subtree_has_mass(name, children, link_mass) -> bool:
-    return any(link_mass(c) > 0 or _subtree_has_mass(c, children, link_mass)
-               for c, _ in children.get(name, []))
+    stack = [c for c, _ in children.get(name, [])]
+    while stack:
+        link = stack.pop()
+        if link_mass(link) > 0:
+            return True
+        stack += [c for c, _ in children.get(link, [])]
+    return False
 
 
 def _load_erd(name: str, source: str) -> Robot:

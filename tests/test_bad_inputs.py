@@ -122,3 +122,29 @@ def test_a_giant_urdf_is_refused_before_it_is_read(tmp_path, capsys):
     config.write_text(STANDARD.read_text().replace("robot: two_link_arm", "robot: giant.urdf"))
     code, err = _run(["check", str(config)], capsys)
     assert code == 2 and "a URDF may have at most 33554432" in err, err
+
+
+def _chain_urdf(n: int, joint_type: str) -> str:
+    """A chain of n links below a massless root, the first joint revolute, the rest
+    ``joint_type``."""
+    inertial = ('<inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" '
+                'izz="1"/></inertial>')
+    links = ['<link name="l0"/>'] + [f'<link name="l{i}">{inertial}</link>' for i in range(1, n + 1)]
+    joints = [f'<joint name="j{i}" type="{"revolute" if i == 1 else joint_type}"><parent '
+              f'link="l{i - 1}"/><child link="l{i}"/><axis xyz="0 1 0"/><limit lower="-1" '
+              'upper="1" effort="1" velocity="1"/></joint>' for i in range(1, n + 1)]
+    return '<robot name="chain">' + "".join(links + joints) + "</robot>"
+
+
+def test_urdf_link_count_is_bounded_and_long_chains_within_it_load(tmp_path, capsys):
+    """Thousands of links overflowed the recursion of the checks (RecursionError) and of the
+    URDF parser behind Pinocchio (a segfault); within the bound a long chain loads."""
+    from feltool.robot import load_robot
+
+    (tmp_path / "long.urdf").write_text(_chain_urdf(5000, "revolute"))
+    code, err = _run(["inspect", str(tmp_path / "long.urdf")], capsys)
+    assert code == 2 and "has 5001 links; feltool loads at most 1000" in err, err
+    for joint_type in ("fixed", "revolute"):
+        (tmp_path / "ok.urdf").write_text(_chain_urdf(999, joint_type))
+        robot = load_robot(str(tmp_path / "ok.urdf"))
+        assert robot.model.nv == (1 if joint_type == "fixed" else 999)
