@@ -21,6 +21,7 @@ from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.events import check_events
 from feltool.fel import FeedbackErrorLearner
 from feltool.hybrid import Allocation, HybridLoop, Walker
+from feltool.memory import check_memory
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, samples_demo, sine_demo
@@ -178,8 +179,15 @@ def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
             problems.append((f"joints.{name}", f"robot '{robot.name}' has no joint '{name}' "
                                                f"(its joints: {listing})"))
             continue
-        if robot.model.joints[robot.joint_id(name)].nv != 1:
+        joint = robot.model.joints[robot.joint_id(name)]
+        role = jc.get("role") if isinstance(jc, dict) else None
+        if joint.nv != 1:
             problems.append((f"joints.{name}", "feltool roles need a one-degree-of-freedom joint"))
+        elif joint.nq != 1 and role != "locked":
+            problems.append((f"joints.{name}", f"joint '{name}' is continuous (an unbounded "
+                             "revolute joint, stored by Pinocchio as cos/sin: two coordinates); "
+                             f"a '{role}' role needs a revolute or prismatic joint: give it "
+                             "type revolute with limits in the URDF, or role: locked"))
         target = jc.get("target") if isinstance(jc, dict) else None
         frame = target.get("frame") if isinstance(target, dict) else None
         if isinstance(frame, str) and not robot.model.existFrame(frame):
@@ -221,6 +229,8 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     locked = {n: 0.0 for n in full_robot.joint_names if n not in cfg.joints}
     locked.update({n: jc.posture for n, jc in cfg.joints.items() if jc.role == "locked"})
     robot = reduce_robot(full_robot, locked)
+    # Before the per-sample arrays exist: refuse a run the machine cannot hold.
+    check_memory(cfg, robot.joint_names, robot.model.njoints - 1, str(source) if source else None)
     robot.set_gravity(cfg.gravity)
     dynamics = make_dynamics(robot.model, "casadi" if cfg.backend == "casadi" else "pinocchio")
     nv = robot.model.nv
@@ -228,9 +238,11 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     for name in robot.joint_names:
         joints[robot.v_index(name)] = name
     if robot.model.nq != nv:
+        multi = [n for n in robot.joint_names if robot.model.joints[robot.joint_id(n)].nq != 1]
         raise ConfigError([("robot", "after locking the unconfigured joints the model still has "
-                                     "joints with more than one coordinate; lock them or list "
-                                     "them under joints")], str(source) if source else None)
+                                     "joints with more than one coordinate ("
+                                     + ", ".join(multi) + "); lock them")],
+                          str(source) if source else None)
 
     # Primitives: fit demos (eq. 2.4); learned joints get their random start per seed.
     dt, T = cfg.dt, cfg.period_s
@@ -541,6 +553,8 @@ def reduce_robot(robot: Robot, locked: dict[str, float]) -> Robot:
         joint = robot.model.joints[jid]
         if joint.nq == 1:
             q_ref[joint.idx_q] = posture
+        elif joint.nq == 2 and joint.nv == 1:  # continuous: (cos, sin) of the angle
+            q_ref[joint.idx_q:joint.idx_q + 2] = np.cos(posture), np.sin(posture)
     model = pin.buildReducedModel(robot.model, sorted(ids), q_ref)
     if model.nv == 0:
         raise ConfigError([("joints", "every joint is locked; nothing moves")])

@@ -27,6 +27,7 @@ from feltool.config import apply_overrides, config_to_yaml
 from feltool.errors import InputError
 from feltool.executors import Task, inline, make_executor, run_task
 from feltool.experiment import Experiment, SeedResult, build_experiment, stabilization_errors
+from feltool.memory import check_memory
 from feltool.rundir import atomic_write, load_npz, save_npz, write_json, write_metrics
 from feltool.runstate import RunLock, read_meta, refuse_existing, set_state
 
@@ -77,6 +78,10 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
     cycles = cycles or cfg.sim.cycles
     if not resume:
         refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")
+    parallel = min(workers or os.cpu_count() or 1, len(seeds))
+    if parallel > 1:  # building checked one process; the pool runs this many at once
+        check_memory(cfg, exp.robot.joint_names, exp.robot.model.njoints - 1,
+                     str(exp.source) if exp.source else None, processes=parallel)
     with RunLock(out_dir):
         if resume:
             _check_resumable(out_dir, exp, seeds, cycles)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import socket
 import subprocess
@@ -13,6 +14,25 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
+IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
+ALLOWED_SKIP = "(allowed skip)"  # a skip reason that names a fact of the machine, not a tool
+_skipped: list[str] = []
+
+
+def pytest_runtest_logreport(report) -> None:
+    if report.skipped:
+        reason = report.longrepr[-1] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        if ALLOWED_SKIP not in reason:
+            _skipped.append(f"{report.nodeid}: {reason}")
+
+
+def pytest_sessionfinish(session, exitstatus) -> None:
+    """In CI nothing skips silently: a missing browser, compiler or test dependency fails the
+    run, naming each test it kept from running."""
+    if IN_CI and _skipped and exitstatus == 0:
+        print("\nCI: these tests were skipped, so CI fails (install what they name):\n  "
+              + "\n  ".join(_skipped))
+        session.exitstatus = 1
 
 
 @pytest.fixture

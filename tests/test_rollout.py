@@ -181,8 +181,9 @@ def _stop(proc: subprocess.Popen) -> None:
 def test_run_view_streams_a_moving_robot_to_the_browser(browser, tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "feltool.cli", "run", "two_link_standard", "--seeds", "0-1",
-         "--cycles", "6", "--realtime", "--view", "--out", str(tmp_path / "run"),
-         "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+         "--cycles", "6", "--realtime", "--view", "--view-timeout", "0", "--out",
+         str(tmp_path / "run"), "--no-progress"], stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, env=ENV)
     try:
         url, _ = _wait_for_url(proc)
         assert url.startswith("http://127.0.0.1:")
@@ -194,6 +195,35 @@ def test_run_view_streams_a_moving_robot_to_the_browser(browser, tmp_path):
         assert proc.returncode == 0, out
         assert re.search(r"view: seed 0: cycle 6/6, error feedback [\d.e+-]+ N m", out), out
         assert (tmp_path / "run" / "summary.json").is_file()
+    finally:
+        _stop(proc)
+
+
+@needs_chromium
+def test_view_url_still_shows_the_robot_after_the_run_has_ended(browser, tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "feltool.cli", "run", "two_link_standard", "--seeds", "0",
+         "--cycles", "2", "--view", "--view-timeout", "120", "--out", str(out),
+         "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV,
+        start_new_session=True)
+    try:
+        url, lines = _wait_for_url(proc)
+        deadline = time.monotonic() + 60
+        while not any("feltool viewer: serving" in ln for ln in lines):  # the run is over
+            assert time.monotonic() < deadline and proc.poll() is None, "".join(lines)
+            lines.append(proc.stdout.readline())
+        assert any("run directory" in ln for ln in lines), "".join(lines)
+        assert (out / "summary.json").is_file()
+        time.sleep(1.0)  # a user who opens the page a moment later
+        page = browser.new_page(viewport={"width": 800, "height": 600})
+        page.goto(url)
+        _assert_drawn_moving_hideable(page, "view after the run")
+        page.close()
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C ends the viewing, not the results
+        rest, _ = proc.communicate(timeout=30)
+        assert proc.returncode == 0, "".join(lines) + rest
+        assert "feltool viewer: stopped" in rest
     finally:
         _stop(proc)
 
@@ -223,10 +253,12 @@ def test_run_html_holds_first_and_last_cycle(html_run):
 
 
 def test_view_html_rewrites_the_page_for_a_chosen_seed_and_cycle(html_run):
-    (html_run / "rollout.html").unlink()
+    first_seed_page = (html_run / "rollout.html").read_bytes()
     res = feltool("view", str(html_run), "--html", "--seed", "1", "--cycles", "last")
     assert res.returncode == 0, res.stderr
-    page = (html_run / "rollout.html").read_text(encoding="utf-8")
+    # another seed gets its own file: the run's rollout.html is not overwritten
+    assert (html_run / "rollout.html").read_bytes() == first_seed_page
+    page = (html_run / "rollout-seed1.html").read_text(encoding="utf-8")
     assert "seed 1" in page and "last cycle (40)" in page and "first cycle" not in page
     for args, needle in ((["--seed", "7"], "no traces for seed 7"),
                          (["--cycles", "middle"], "--cycles")):
@@ -311,7 +343,7 @@ def test_web_port_is_not_reachable_on_a_non_loopback_address():
 
     address = _non_loopback_ipv4()
     if address is None:
-        pytest.skip("this machine has no non-loopback IPv4 address to try")
+        pytest.skip("this machine has no non-loopback IPv4 address to try (allowed skip)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         robot = load_robot("two_link_arm")
@@ -328,9 +360,14 @@ def test_web_port_is_not_reachable_on_a_non_loopback_address():
 # ------------------------------------------------------------------------------------------------
 
 def test_view_replays_a_run_in_the_live_viewer(html_run):
-    res = feltool("view", str(html_run), "--cycles", "first", "--loops", "1", timeout=60)
+    start = time.monotonic()
+    res = feltool("view", str(html_run), "--cycles", "first", "--loops", "1", "--view-timeout",
+                  "4", timeout=60)
     assert res.returncode == 0, res.stderr
-    assert URL.search(res.stdout) and "view: seed 0, first cycle (1)" in res.stdout
+    assert URL.search(res.stdout) and res.stdout.count("view: seed 0, first cycle (1)") == 1
+    # played once, then the page stayed up (showing the last pose) until the timeout
+    assert "serving" in res.stdout and "feltool viewer: stopped" in res.stdout
+    assert time.monotonic() - start >= 4
 
 
 def test_example_robot_data_mesh_robot_with_locked_joints(tmp_path):
