@@ -489,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = _sub(sub, "gait", "design a walker's periodic gait by trajectory optimization",
              "  feltool gait configs/gaits/compass_gait.yaml --out gait.yaml\n"
-             "  feltool gait configs/gaits/three_link_walker.yaml --speed 0.66\n"
+             "  feltool gait configs/gaits/three_link_walker.yaml --speed 0.8\n"
              "  feltool gait configs/gaits/compass_gait.yaml --passive --slope 0.0524\n\n"
              "exit code 0 with the gait written, 1 when no gait was found (nothing written), "
              "2 bad input")

@@ -801,6 +801,9 @@ def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
     problems = []
     for err in exc.errors():
         loc = err["loc"]
+        # a demo's kind is a tag of its (discriminated) union, not a YAML key: drop it
+        loc = tuple(x for i, x in enumerate(loc)
+                    if not (i and loc[i - 1] == "demo" and x in ("sine", "samples")))
         msg = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             msg = "unknown field (check the spelling; see docs/configuration.md)"
