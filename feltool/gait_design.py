@@ -364,7 +364,6 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
         exempt = 0.05 if len(walker.legs) <= 1 else 0.0
     dip = 0.1 * ell
     knot, interval = _knot_functions(W, spec, B, mg, ell, tau_scale, exempt, dip)
-    hk = T / N
     U_all = U if U is not None else ca.DM.zeros(m, N + 1)
     dyn, stance, fric, clear, clear_m, effort = knot.map(N + 1)(Q, V, A, F, U_all)
     b.add("dynamics", dyn)
@@ -376,11 +375,11 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
     if U is not None:
         weights = np.ones(N + 1)
         weights[[0, N]] = 0.5
-        cost = cost + hk * ca.dot(ca.vec(effort), weights)
+        cost = cost + h * ca.dot(ca.vec(effort), weights)
     if not spec.passive:  # the root (the hip) never moves backwards; a passive gait is left to
         b.add("progress", V[W.ix, :], 0.0, np.inf)  # physics alone
     b.add("collocation", interval.map(N)(Q[:, :N], V[:, :N], A[:, :N], Q[:, 1:], V[:, 1:],
-                                         A[:, 1:], hk))
+                                         A[:, 1:], h))
     # Touchdown, impact, relabelling, periodicity.
     qN = W.to_pin(Q[:, N])
     zeros = ca.DM.zeros(nv)
