@@ -363,11 +363,12 @@ class PhysicalLoop:
         (sx, sz), _ = contact.foot_state(q1, v1, W.swing)
         ahead = sx - anchor[0]
         exempt = abs(ahead) < chk.scuff_exempt
-        if not exempt:
-            st.min_clearance = min(st.min_clearance, float(sz))
         if sz >= -CLEARANCE_TOL or exempt:
+            if not exempt:
+                st.min_clearance = min(st.min_clearance, float(sz))
             return q1, v1, None
         if z0 <= 0.0 or ahead <= 0.0:
+            st.min_clearance = min(st.min_clearance, float(sz))
             where = "behind" if ahead <= 0.0 else "ahead of"
             raise NotWalking(f"the swing foot is {-sz * 1e3:.3g} mm below the ground, "
                              f"{abs(ahead):.3g} m {where} the stance foot, away from a touchdown "
@@ -382,6 +383,7 @@ class PhysicalLoop:
         qs, vs = contact.hold(qs, vs, W.stance, anchor)
         (tx, tz), (tvx, tvz) = contact.foot_state(qs, vs, W.swing)
         st.touchdown_height = float(tz)
+        st.min_clearance = min(st.min_clearance, max(float(tz), 0.0))
         if tvz >= 0.0:
             raise NotWalking("the swing foot reached the ground moving up")
         imp = contact.impact(qs, vs, W.swing)

@@ -1,0 +1,325 @@
+"""The physical walker: stance dynamics against Newton's law for the centre of mass, rigid impacts
+against momentum conservation (closed forms written here), touchdown located at contact, and
+contact violations reported as not walking."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from feltool.contact import Contact
+from feltool.control import FeedbackLaw
+from feltool.dynamics import make_dynamics
+from feltool.robot import load_robot, load_urdf_string
+from feltool.walker_model import FootSpec, build_walker_model
+from feltool.walking import ContactChecks, PhysicalLoop, PhysicalWalker
+
+FEET = {"left": FootSpec(frame="left_foot"), "right": FootSpec(frame="right_foot")}
+M_LEG, M_H, M_T, R, L = 15.0, 10.0, 40.0, 1.0, 1.0  # Table B.1
+
+
+def five_link():
+    return build_walker_model(load_robot("five_link_walker"), FEET,
+                              [("left_hip", "right_hip"), ("left_knee", "right_knee")])
+
+
+def three_link():
+    return build_walker_model(load_robot("three_link_walker"), FEET, [("left_hip", "right_hip")])
+
+
+COMPASS = """<?xml version="1.0"?>
+<robot name="compass">
+  <link name="world_root"/>
+  <link name="slider_x"/>
+  <link name="slider_z"/>
+  <link name="hip"><inertial><mass value="10"/>
+    <inertia ixx="0.05" ixy="0" ixz="0" iyy="0.05" iyz="0" izz="0.01"/></inertial></link>
+  <link name="left_leg"><inertial><origin xyz="0 0 -0.5"/><mass value="5"/>
+    <inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.01"/></inertial></link>
+  <link name="right_leg"><inertial><origin xyz="0 0 -0.5"/><mass value="5"/>
+    <inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.01"/></inertial></link>
+  <joint name="x" type="prismatic"><parent link="world_root"/><child link="slider_x"/>
+    <axis xyz="1 0 0"/><limit lower="-100" upper="100" effort="0" velocity="100"/></joint>
+  <joint name="z" type="prismatic"><parent link="slider_x"/><child link="slider_z"/>
+    <axis xyz="0 0 1"/><limit lower="-100" upper="100" effort="0" velocity="100"/></joint>
+  <joint name="pitch" type="continuous"><parent link="slider_z"/><child link="hip"/>
+    <axis xyz="0 1 0"/></joint>
+  <joint name="left_hip" type="revolute"><parent link="hip"/><child link="left_leg"/>
+    <axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="50" velocity="100"/></joint>
+  <joint name="right_hip" type="revolute"><parent link="hip"/><child link="right_leg"/>
+    <axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="50" velocity="100"/></joint>
+</robot>
+"""
+
+
+def compass():
+    robot = load_urdf_string(COMPASS, name="compass")
+    feet = {"left": FootSpec(link="left_leg", offset=(0, 0, -1.0)),
+            "right": FootSpec(link="right_leg", offset=(0, 0, -1.0))}
+    return build_walker_model(robot, feet, [("left_hip", "right_hip")], base=["x", "z", "pitch"])
+
+
+def random_state(model, rng):
+    q = pin.neutral(model)
+    v = rng.normal(0.0, 1.5, model.nv)
+    for j in range(1, model.njoints):
+        jm = model.joints[j]
+        if jm.nq == 1:
+            q[jm.idx_q] = rng.uniform(-1.0, 1.0)
+        else:  # continuous: (cos, sin)
+            a = rng.uniform(-1.0, 1.0)
+            q[jm.idx_q:jm.idx_q + 2] = np.cos(a), np.sin(a)
+    return q, v
+
+
+@pytest.mark.parametrize("build", [five_link, three_link, compass])
+def test_ground_force_balances_the_centre_of_mass(build, rng):
+    """Newton for the whole robot: the ground force is m (a_com - g), to 1e-8 N; the stance
+    foot does not accelerate."""
+    w = build()
+    model, data = w.model, w.model.createData()
+    contact = Contact(w)
+    mass = sum(inertia.mass for inertia in model.inertias)
+    g = model.gravity.linear[[0, 2]]
+    base = {model.joints[w.robot.joint_id(n)].idx_v for n in w.base}
+    for _ in range(50):
+        q, v = random_state(model, rng)
+        tau = np.array([0.0 if i in base else rng.normal(0, 60.0) for i in range(model.nv)])
+        res = contact.stance(q, v, tau, "left")
+        pin.centerOfMass(model, data, q, v, res.a)
+        a_com = data.acom[0][[0, 2]]
+        np.testing.assert_allclose(res.force, mass * (a_com - g), atol=1e-8, rtol=0)
+        pin.forwardKinematics(model, data, q, v, res.a)
+        acc = pin.getFrameClassicalAcceleration(model, data, w.feet["left"],
+                                                pin.LOCAL_WORLD_ALIGNED).linear
+        np.testing.assert_allclose(acc, 0.0, atol=1e-9)
+
+
+def test_centre_of_mass_acceleration_by_finite_differences(rng):
+    """The COM acceleration of the contact dynamics, by a central difference of the COM along
+    the motion q(t) = q + t v + t^2 a / 2 (no Pinocchio acceleration kinematics)."""
+    w = five_link()
+    model, data = w.model, w.model.createData()
+    contact = Contact(w)
+    mass = sum(inertia.mass for inertia in model.inertias)
+    for _ in range(10):
+        q, v = random_state(model, rng)
+        tau = np.concatenate([np.zeros(3), rng.normal(0, 60.0, 4)])
+        res = contact.stance(q, v, tau, "left")
+        eps = 1e-4
+        com = [pin.centerOfMass(model, data, q + t * v + 0.5 * t**2 * res.a)[[0, 2]]
+               for t in (-eps, 0.0, eps)]
+        a_fd = (com[0] - 2 * com[1] + com[2]) / eps**2
+        np.testing.assert_allclose(res.force, mass * (a_fd - model.gravity.linear[[0, 2]]),
+                                   atol=1e-3 * mass)
+
+
+def point_masses(q):
+    """Closed form of the three-link walker's point masses (Table B.1): positions (x, z) of
+    (torso, hip, left leg, right leg), their masses; q = (x, z, pitch, q_left, q_right)."""
+    x, z, th, ql, qr = q
+    hip = np.array([x, z])
+    torso = hip + L * np.array([np.sin(th), np.cos(th)])
+    legs = [hip - 0.5 * R * np.array([np.sin(th + a), np.cos(th + a)]) for a in (ql, qr)]
+    return np.array([torso, hip, *legs]), np.array([M_T, M_H, M_LEG, M_LEG])
+
+
+def angular_momentum_closed_form(q, v, p):
+    """Angular momentum about point p (y component) of the point masses, in [kg m^2/s]; the
+    velocities by central differences of the closed-form positions."""
+    pos, masses = point_masses(q)
+    eps = 1e-6
+    vel = sum(vi * (point_masses(q + eps * e)[0] - point_masses(q - eps * e)[0]) / (2 * eps)
+              for vi, e in zip(v, np.eye(5)))
+    r = pos - p
+    # y component of r x (m v) with r = (x, 0, z): (r x mv)_y = z m vx - x m vz
+    return float(np.sum(masses * (r[:, 1] * vel[:, 0] - r[:, 0] * vel[:, 1])))
+
+
+def kinetic_energy_closed_form(q, v):
+    pos, masses = point_masses(q)
+    eps = 1e-6
+    vel = sum(vi * (point_masses(q + eps * e)[0] - point_masses(q - eps * e)[0]) / (2 * eps)
+              for vi, e in zip(v, np.eye(5)))
+    return 0.5 * float(np.sum(masses * (vel**2).sum(axis=1)))
+
+
+def test_impact_conserves_angular_momentum_about_the_new_contact(rng):
+    """Three-link walker: a rigid impact at the landing foot keeps the angular momentum about
+    that foot and, since the hips carry no impulsive torque, the trailing leg's about the hip;
+    it never gains energy; the landing foot stops."""
+    w = three_link()
+    contact = Contact(w)
+    for _ in range(30):
+        q = np.array([0.3, 0.9, rng.uniform(-0.4, 0.4), rng.uniform(-0.5, 0.5),
+                      rng.uniform(-0.5, 0.5)])
+        v = rng.normal(0, 1.5, 5)
+        p, _ = contact.foot_state(q, v, "right")
+        imp = contact.impact(q, v, "right")
+        np.testing.assert_allclose(angular_momentum_closed_form(q, imp.v, p),
+                                   angular_momentum_closed_form(q, v, p), atol=1e-6)
+        _, foot_v = contact.foot_state(q, imp.v, "right")
+        np.testing.assert_allclose(foot_v, 0.0, atol=1e-10)
+        lost = kinetic_energy_closed_form(q, v) - kinetic_energy_closed_form(q, imp.v)
+        assert lost >= -1e-9
+        assert imp.energy_lost == pytest.approx(lost, abs=1e-6)
+        # the trailing (left) leg: only the hip's joint impulse acts on it, through the hip, so
+        # its (absolute) angular momentum about the hip is unchanged by the impact
+        assert leg_about_hip(q, imp.v) == pytest.approx(leg_about_hip(q, v), abs=1e-6)
+
+
+def leg_about_hip(q, v):
+    """Absolute angular momentum of the left leg's point mass about the hip [kg m^2/s]."""
+    pos, _ = point_masses(q)
+    eps = 1e-6
+    vel = sum(vi * (point_masses(q + eps * e)[0] - point_masses(q - eps * e)[0]) / (2 * eps)
+              for vi, e in zip(v, np.eye(5)))
+    r = pos[2] - pos[1]
+    return M_LEG * (r[1] * vel[2, 0] - r[0] * vel[2, 1])
+
+
+def spatial_angular_momentum(model, data, q, v, p):
+    """y component of the angular momentum about the world point p = (x, z), summed over the
+    bodies from their masses, inertias and velocities (r x m v_c + I omega)."""
+    pin.forwardKinematics(model, data, q, v)
+    total = 0.0
+    for i in range(1, model.njoints):
+        I = model.inertias[i]
+        oMi = data.oMi[i]
+        c = oMi.act(I.lever)
+        vel = oMi.act(data.v[i])  # spatial velocity at the world origin, world axes
+        v_c = vel.linear + np.cross(vel.angular, c)
+        Iw = oMi.rotation @ I.inertia @ oMi.rotation.T
+        r = c - np.array([p[0], 0.0, p[1]])
+        total += (np.cross(r, I.mass * v_c) + Iw @ vel.angular)[1]
+    return total
+
+
+@pytest.mark.parametrize("build", [five_link, compass])
+def test_impact_momentum_and_energy_with_inertias(build, rng):
+    w = build()
+    model, data = w.model, w.model.createData()
+    contact = Contact(w)
+    for _ in range(30):
+        q, v = random_state(model, rng)
+        p, _ = contact.foot_state(q, v, "right")
+        imp = contact.impact(q, v, "right")
+        np.testing.assert_allclose(spatial_angular_momentum(model, data, q, imp.v, p),
+                                   spatial_angular_momentum(model, data, q, v, p), atol=1e-9)
+        assert imp.energy_lost >= -1e-12
+        np.testing.assert_allclose(contact.foot_state(q, imp.v, "right")[1], 0.0, atol=1e-10)
+
+
+# -- the closed loop -----------------------------------------------------------------------------
+
+def standing_loop(w, kp_scale=1.0, torques="report"):
+    """The five-link walker on its left foot, joints held by PD at a posture, the torso's pitch
+    stabilized."""
+    model = w.model
+    nv = model.nv
+    walker = PhysicalWalker(w, ContactChecks(friction=0.7, effort=np.full(4, 150.0),
+                                             torques=torques), 1, "clock")
+    kp = kp_scale * np.array([0, 0, 400, 300, 300, 300, 300.0])
+    track = np.array([0, 0, 0, 1, 1, 1, 1], bool)
+    stab = np.array([0, 0, 1, 0, 0, 0, 0], bool)
+    law = FeedbackLaw(np.eye(nv), kp, kp / 10, track, stab, np.zeros(nv), {})
+    dyn = make_dynamics(model)
+    return PhysicalLoop(dyn, law, walker, 0.005, 2, stab.astype(float)), dyn
+
+
+def test_standing_on_one_foot_holds_the_weight():
+    w = five_link()
+    loop, dyn = standing_loop(w)
+    model, data = w.model, w.model.createData()
+    posture = np.array([0, 0, 0, 0, 0, -0.3, 0.6])
+    n = 400  # 2 s
+    P, Z = np.tile(posture, (n, 1)), np.zeros((n, model.nv))
+    q, v = loop.initial_state(P, Z)
+    # the pitch that puts the centre of mass above the stance foot (bisection)
+    lo, hi = -0.5, 0.5
+    for _ in range(60):
+        q[2] = 0.5 * (lo + hi)
+        q, v, _ = loop.walker.complete(q, v, np.zeros_like(v))
+        if pin.centerOfMass(model, data, q)[0] > 0:
+            hi = q[2]
+        else:
+            lo = q[2]
+    loop.law.targets[2] = q[2]
+    log = loop.run_cycle(dyn, q, v, P, Z, Z)
+    assert log.fall is None and len(log.q) == n and not log.impacts
+    mg = pin.computeTotalMass(model) * -model.gravity.linear[2]
+    np.testing.assert_allclose(log.force[:, 1], mg, rtol=0.01)
+    assert np.abs(log.force[:, 0]).max() < 0.05 * mg
+
+
+def test_passive_walker_falls_and_is_reported():
+    w = five_link()
+    loop, dyn = standing_loop(w, kp_scale=0.0)
+    loop.known = type("NoFeedforward", (), {"inverse": lambda self, q, v, a: np.zeros(7)})()
+    posture = np.array([0, 0, 0, 0, 0, -0.3, 0.6])
+    n = 400
+    P, Z = np.tile(posture, (n, 1)), np.zeros((n, 7))
+    q, v = loop.initial_state(P, Z)
+    log = loop.run_cycle(dyn, q, v, P, Z, Z)
+    assert log.fall is not None and log.fall.startswith("not walking")
+    assert len(log.q) < n
+
+
+def test_lifting_stance_foot_is_not_walking(rng):
+    """A state whose contact force would pull the foot down (F_z <= 0, checked independently by
+    the centre of mass balance) stops the loop as not walking, naming the normal force."""
+    w = five_link()
+    model, data = w.model, w.model.createData()
+    contact = Contact(w)
+    loop, dyn = standing_loop(w, kp_scale=0.0)
+    zero = np.zeros(7)
+    for _ in range(2000):
+        q, v = random_state(model, rng)
+        q, v, _ = loop.walker.complete(q, v, zero)
+        (_, sz), _ = contact.foot_state(q, v, "right")
+        res = contact.stance(q, v, zero, "left")
+        if res.force[1] < 0 and sz > 0.05:
+            break
+    else:
+        pytest.fail("no lifting state found")
+    pin.centerOfMass(model, data, q, v, res.a)
+    assert pin.computeTotalMass(model) * (data.acom[0][2] - model.gravity.linear[2]) < 0
+    loop.known = type("NoFeedforward", (), {"inverse": lambda self, q, v, a: zero})()
+    P = np.tile(q, (10, 1))
+    log = loop.run_cycle(dyn, q, v, P, np.zeros((10, 7)), np.zeros((10, 7)))
+    assert log.fall is not None and "normal force" in log.fall and "not walking" in log.fall
+
+
+def test_touchdown_is_located_at_contact():
+    """Three-link walker falling forward on its stance leg, the swing leg held ahead: the step
+    ends where the swing foot meets the ground moving down (|z| <= 1e-9 m, not by the clock),
+    and the new stance foot is at the origin after relabelling."""
+    w = three_link()
+    model = w.model
+    walker = PhysicalWalker(w, ContactChecks(friction=5.0, effort=np.full(2, 1e4)), 1, "clock")
+    kp = np.array([0, 0, 4000.0, 400.0, 400.0])
+    track = np.array([0, 0, 0, 0, 1], bool)
+    stab = np.array([0, 0, 1, 0, 0], bool)
+    C = np.eye(5)
+    C[4, 2] = 1.0  # the swing leg's absolute angle: pitch + q_right
+    law = FeedbackLaw(C, kp, kp / 10, track, stab, np.array([0, 0, 0.1, 0, 0]), {})
+    dyn = make_dynamics(model)
+    loop = PhysicalLoop(dyn, law, walker, 0.005, 2, stab.astype(float))
+    n = 300
+    # stance leg 0.05 rad past the vertical (foot behind the hip), swing leg at -0.3 (ahead)
+    qd = np.array([0, 0, 0.1, -0.05, -0.4])
+    P, Z = np.tile(qd, (n, 1)), np.zeros((n, 5))
+    q, v = loop.initial_state(P, Z)
+    log = loop.run_cycle(dyn, q, v, P, Z, Z)
+    assert log.impacts, log.fall
+    st = log.steps[0]
+    assert abs(st.touchdown_height) <= 1e-9
+    assert 0.2 < st.length < 1.0
+    assert st.energy_lost > 0
+    assert 0 < st.duration < n * 0.005
+    # right after the touchdown the (relabelled) stance foot is at the origin
+    k = log.impacts[0][0]
+    if k < len(log.q):
+        p, pv = Contact(w).foot_state(log.q[k], log.v[k], "left")
+        np.testing.assert_allclose(p, 0.0, atol=1e-9)
