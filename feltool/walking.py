@@ -100,7 +100,12 @@ class StepStats:
 
 
 class NotWalking(Exception):
-    """Contact physics violated: the reason, in words."""
+    """Contact physics violated: the reason, in words, and its kind (``normal_force``,
+    ``friction``, ``clearance``, ``touchdown``, ``impulse``, ``lift_off``, ``torque``)."""
+
+    def __init__(self, message: str, kind: str):
+        super().__init__(message)
+        self.kind = kind
 
 
 class PhysicalWalker:
@@ -170,6 +175,32 @@ class PhysicalWalker:
         ad[[bx, bz]] = -(J @ ad + c.drift(qd, vd, self.stance))
         return qd, vd, ad
 
+    def labelled(self, qd: np.ndarray, vd: np.ndarray, ad: np.ndarray, label: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The RMPs' values in the current labels: with an even ``steps_per_cycle`` the RMPs
+        describe the cycle in its first step's labels (the thesis's gait coordinates), so in
+        every second step (``label`` 1) the legs' values are exchanged."""
+        if label == 0:
+            return qd, vd, ad
+        sw = self.walker.swap_v
+        return qd[sw], vd[sw], ad[sw]
+
+    def chain(self, qd: np.ndarray, label: int) -> np.ndarray:
+        r"""``(nv, nv)`` derivative of the completed desired state by the RMPs' values: the
+        label's permutation, then the base translation that keeps the stance foot in place
+        (:math:`\partial x_b/\partial p = -J_c` for the other coordinates, base columns zero;
+        the same matrix maps velocities and, to first order, accelerations)."""
+        nv = len(qd)
+        G = np.eye(nv)
+        if label:
+            G = G[self.walker.swap_v]
+        J = self.contact.jacobian(qd, self.stance)
+        T = np.eye(nv)
+        bx, bz = self.base_v[0], self.base_v[1]
+        T[[bx, bz], :] = -J
+        T[:, [bx, bz]] = 0.0
+        return T @ G
+
     def allocate(self, q: np.ndarray, tau_w: np.ndarray) -> np.ndarray:
         """Motor torques ``(k,)`` in [N m] for the wanted generalized force ``tau_w``."""
         c = self.contact
@@ -220,6 +251,7 @@ class WalkLog:
     tau: np.ndarray | None = None
     force: np.ndarray | None = None
     torque_hits: np.ndarray | None = None
+    not_walking: str | None = None
 
 
 class PhysicalLoop:
@@ -262,10 +294,11 @@ class PhysicalLoop:
         Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n_max, nv)) for _ in range(8))
         Tau, Force = np.zeros((n_max, k_motors)), np.zeros((n_max, 2))
         index = np.zeros(n_max, dtype=int)
+        labels = np.zeros(n_max, dtype=int)
         hits = np.zeros(k_motors, int)
         steps, impacts = [StepStats()], []
         h = self.dt / self.substeps
-        j, m, fall, t_step = 0, 0, None, 0.0
+        j, m, fall, t_step, kind = 0, 0, None, 0.0, None
         try:
             while m < n_max and not (clock and m >= n):
                 if not clock and len(impacts) >= W.steps_per_cycle:
@@ -273,7 +306,9 @@ class PhysicalLoop:
                 k = m
                 jj = min(j, n - 1)
                 index[k] = jj
-                qd, vd, ad = W.complete(P[jj], Pv[jj], Pa[jj])
+                label = len(impacts) % 2 if W.steps_per_cycle % 2 == 0 else 0
+                labels[k] = label
+                qd, vd, ad = W.complete(*W.labelled(P[jj], Pv[jj], Pa[jj], label))
                 Q[k], V[k], Qd[k], Vd[k], Ad[k] = q, v, qd, vd, ad
                 m += 1
                 r, rd = self.law.references(qd[None], vd[None])
@@ -289,7 +324,7 @@ class PhysicalLoop:
                         raise NotWalking(
                             f"the torque of motor '{W.motor_names[i]}' is {u[i]:.4g} N m, beyond "
                             f"its effort limit {W.checks.effort[i]:.4g} N m "
-                            "(sim.torque_limits: report; saturate clips it)")
+                            "(sim.torque_limits: report; saturate clips it)", "torque")
                 Tau[k] = u
                 tau = W.B @ u
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
@@ -315,13 +350,21 @@ class PhysicalLoop:
                 j += 1
             if fall is None and not clock and len(impacts) < W.steps_per_cycle:
                 raise NotWalking(f"no touchdown within {n_max * self.dt:.3g} s "
-                                 f"({len(impacts)} of {W.steps_per_cycle})")
+                                 f"({len(impacts)} of {W.steps_per_cycle})", "touchdown")
         except NotWalking as exc:
-            fall = f"not walking: {exc}"
+            fall, kind = f"not walking: {exc}", exc.kind
         sl = slice(0, m)
-        return WalkLog(Q[sl], V[sl], U[sl], q, v, Qd[sl], Vd[sl], Ad[sl], np.zeros(m, int),
+        return WalkLog(Q[sl], V[sl], U[sl], q, v, Qd[sl], Vd[sl], Ad[sl], labels[sl],
                        impacts, fall, Urows[sl], Uerr[sl], steps, index[sl], Tau[sl], Force[sl],
-                       hits)
+                       hits, kind)
+
+    def jacobian_derivatives(self, log: WalkLog) -> tuple:
+        """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with
+        respect to the RMPs' values, through :meth:`PhysicalWalker.chain`."""
+        u_ff, Dq, Dv, M = self.known.inverse_derivatives_batch(log.Qd, log.Vd, log.Ad)
+        Gs = np.stack([self.walker.chain(qd, s) for qd, s in zip(log.Qd, log.stance)])
+        mul = lambda D: np.einsum("kij,kjl->kil", D, Gs)  # noqa: E731
+        return u_ff, mul(Dq), mul(Dv), mul(M)
 
     # -- one Runge-Kutta sub-step with the contact events ------------------------------------------
     def _rk4(self, contact: Contact, q, v, tau, h):
@@ -350,12 +393,13 @@ class PhysicalLoop:
         st.min_normal_force = min(st.min_normal_force, float(Fz))
         if Fz <= chk.normal_force_min or Fz <= 0.0:
             raise NotWalking(f"the stance foot's normal force is {Fz:.4g} N (walking."
-                             f"normal_force_min = {chk.normal_force_min} N): the foot would lift")
+                             f"normal_force_min = {chk.normal_force_min} N): the foot would lift",
+                             "normal_force")
         ratio = abs(Fx) / Fz
         st.max_friction_ratio = max(st.max_friction_ratio, float(ratio))
         if ratio > chk.friction:
             raise NotWalking(f"the stance foot's friction ratio |F_x|/F_z is {ratio:.3g} "
-                             f"(walking.friction = {chk.friction}): the foot would slide")
+                             f"(walking.friction = {chk.friction}): the foot would slide", "friction")
         anchor = contact.foot_state(q, v, W.stance)[0]
         z0 = contact.foot_state(q, v, W.swing)[0][1]
         q1, v1 = self._rk4(contact, q, v, tau, h)
@@ -372,7 +416,7 @@ class PhysicalLoop:
             where = "behind" if ahead <= 0.0 else "ahead of"
             raise NotWalking(f"the swing foot is {-sz * 1e3:.3g} mm below the ground, "
                              f"{abs(ahead):.3g} m {where} the stance foot, away from a touchdown "
-                             f"(walking.scuff_exempt_m = {chk.scuff_exempt})")
+                             f"(walking.scuff_exempt_m = {chk.scuff_exempt})", "clearance")
         # Touchdown inside this sub-step: its time by Brent's method on the sub-step's length.
         def height(s):
             qs, vs = self._rk4(contact, q, v, tau, s)
@@ -385,7 +429,7 @@ class PhysicalLoop:
         st.touchdown_height = float(tz)
         st.min_clearance = min(st.min_clearance, max(float(tz), 0.0))
         if tvz >= 0.0:
-            raise NotWalking("the swing foot reached the ground moving up")
+            raise NotWalking("the swing foot reached the ground moving up", "touchdown")
         imp = contact.impact(qs, vs, W.swing)
         Ix, Iz = imp.impulse
         st.impulse, st.energy_lost = imp.impulse.copy(), imp.energy_lost
@@ -394,13 +438,14 @@ class PhysicalLoop:
         _, (_, trail_vz) = contact.foot_state(qs, imp.v, W.stance)
         st.trailing_vz = float(trail_vz)
         if Iz <= 0.0:
-            raise NotWalking(f"the touchdown impulse would pull the ground (I_z = {Iz:.4g} N s)")
+            raise NotWalking(f"the touchdown impulse would pull the ground (I_z = {Iz:.4g} N s)", "impulse")
         if st.impulse_ratio > chk.friction:
             raise NotWalking(f"the touchdown impulse ratio |I_x|/I_z is {st.impulse_ratio:.3g} "
-                             f"(walking.friction = {chk.friction}): the landing foot would slide")
+                             f"(walking.friction = {chk.friction}): the landing foot would slide",
+                             "impulse")
         if trail_vz < -1e-9:
             raise NotWalking(f"the trailing foot does not lift off after the touchdown (its "
-                             f"vertical velocity is {trail_vz:.4g} m/s)")
+                             f"vertical velocity is {trail_vz:.4g} m/s)", "lift_off")
         # Relabel (the landing leg becomes the stance leg) and put its foot at x = 0, z = 0.
         qn, vn = W.walker.relabel(qs, imp.v)
         qn = qn.copy()
