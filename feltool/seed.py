@@ -307,7 +307,7 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
     if log.fall is None and exp.learner.n_learned:
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
         J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs,
-                                 rows=getattr(log, "phase_index", None))
+                                 samples=getattr(log, "phase_index", None))
         theta_next = exp.learner.step(theta, J, _impact_masked(exp, log))
     out = _outcome(exp, log, log.Qd, theta_next)
     out.fall, out.impacts = log.fall, list(log.impacts)

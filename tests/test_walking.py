@@ -323,3 +323,84 @@ def test_touchdown_is_located_at_contact():
     if k < len(log.q):
         p, pv = Contact(w).foot_state(log.q[k], log.v[k], "left")
         np.testing.assert_allclose(p, 0.0, atol=1e-9)
+
+
+# -- config and run path ---------------------------------------------------------------------------
+
+LEG = {"kind": "sine", "mean": -0.121553, "amplitude": 0.178174, "phase": 4.393794,
+       "harmonics": [[0.038518, -0.0531], [0.003956, 4.165483], [0.00485, -0.09429]]}
+
+
+def physical_config(**walking):
+    """The three-link walker as a physical walker (a gait from the pinned biped's harmonics)."""
+    return {
+        "name": "three_link_physical", "robot": "three_link_walker", "gravity": 9.8,
+        "period_s": 1.0, "sim": {"rate_hz": 200, "cycles": 2, "substeps": 2},
+        "primitives": {"basis": 16},
+        "joints": {
+            "base_pitch": {"role": "stabilize", "gains": {"kp": 4000.0, "kd": 800.0},
+                           "target": {"link_angle": ["base_pitch"], "value": 0.125},
+                           "learn": {"init": "random", "weight_scale": 0.3,
+                                     "goal_center": 0.125, "goal_spread": 0.1}},
+            "left_hip": {"role": "passive", "demo": LEG},
+            "right_hip": {"role": "track", "link_angle": ["base_pitch", "right_hip"],
+                          "demo": {**LEG, "delay": 0.5}, "gains": {"kp": 400.0, "kd": 40.0}},
+        },
+        "walking": {"feet": {"left": {"frame": "left_foot"}, "right": {"frame": "right_foot"}},
+                    "legs": [["left_hip", "right_hip"]], "steps_per_cycle": 2,
+                    "poincare": False, **walking},
+        "learning": {"error": "all_feedback", "rates": {"weights": 2e-5, "goal": 2e-9}},
+        "seeds": 1,
+    }
+
+
+def test_physical_walker_config_builds():
+    from feltool.experiment import build_experiment
+
+    exp = build_experiment(physical_config())
+    assert exp.joints == ["base_x", "base_z", "base_pitch", "left_hip", "right_hip"]
+    assert exp.config.joints["base_x"].role == "passive"
+    assert exp.hybrid.walker.checks.scuff_exempt == 0.05  # no knees
+    np.testing.assert_allclose(exp.hybrid.walker.checks.effort, [1000.0, 1000.0])
+
+
+@pytest.mark.parametrize("feet, where", [
+    ({"left": {"link": "torso", "offset": [0, 0, -1]}, "right": {"frame": "right_foot"}},
+     "walking.feet.left"),
+    ({"left": {"frame": "right_foot"}, "right": {"frame": "left_foot"}}, "walking.feet.left"),
+    ({"left": {"frame": "nowhere"}, "right": {"frame": "right_foot"}}, "walking.feet.left"),
+])
+def test_foot_not_at_the_end_of_its_leg_is_rejected(feet, where):
+    from feltool.errors import ConfigError
+    from feltool.experiment import build_experiment
+
+    with pytest.raises(ConfigError) as err:
+        build_experiment(physical_config(feet=feet))
+    assert where in str(err.value)
+
+
+def test_pinned_walker_fields_are_rejected_on_a_physical_walker():
+    from feltool.errors import ConfigError
+    from feltool.experiment import build_experiment
+
+    with pytest.raises(ConfigError) as err:
+        build_experiment(physical_config(swap=["left_hip", "right_hip"]))
+    assert "walking" in str(err.value) and "swap" in str(err.value)
+
+
+def test_lifting_foot_is_counted_as_not_walking_in_the_summary():
+    """A stance foot that cannot push the demanded normal force stops the seed as not walking;
+    summary and aggregate name the kind and count it."""
+    from feltool.experiment import build_experiment
+    from feltool.runner import aggregate
+    from feltool.seed import run_seed
+
+    exp = build_experiment(physical_config(normal_force_min=5000.0))
+    res = run_seed(exp, 0, cycles=2)
+    assert res.summary["diverged"]
+    assert "normal force" in res.summary["diverged_reason"]
+    assert res.summary["walking"]["walked"] is False
+    assert res.summary["walking"]["not_walking"] == "normal_force"
+    agg = aggregate([res.summary])
+    assert agg["n_not_walking"] == 1 and agg["not_walking"] == {"normal_force": 1}
+    assert agg["n_walked"] == 0
