@@ -76,12 +76,19 @@ def _chain_problems(w: WalkingConfig, wm: WalkerModel) -> list[tuple[str, str]]:
             chain.add(m.names[j])
             j = m.parents[j]
         own = [p[side[foot]] for p in w.legs]
-        other = [p[1 - side[foot]] for p in w.legs]
+        # a chained pair (the compass gait's [base_pitch, hip]: the second joint carried by the
+        # first) lies on both chains; only the other side's joint of a plain pair must not
+        other = [p[1 - side[foot]] for p in w.legs if not _chained(m, p)]
         if not all(n in chain for n in own) or any(n in chain for n in other):
             problems.append((where, f"the contact point's chain ({', '.join(sorted(chain))}) "
                              f"must pass through the {foot} joints of walking.legs "
                              f"({', '.join(own)}) and not through the other side's"))
     return problems
+
+
+def _chained(m: pin.Model, pair) -> bool:
+    a, b = (m.getJointId(n) for n in pair)
+    return m.parents[b] == a or m.parents[a] == b
 
 
 def _symmetry_problems(w: WalkingConfig, wm: WalkerModel) -> list[tuple[str, str]]:

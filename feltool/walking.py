@@ -182,8 +182,9 @@ class PhysicalWalker:
         every second step (``label`` 1) the legs' values are exchanged."""
         if label == 0:
             return qd, vd, ad
-        sw = self.walker.swap_v
-        return qd[sw], vd[sw], ad[sw]
+        q2, v2 = self.walker.relabel(qd, vd)
+        _, a2 = self.walker.relabel(qd, ad)
+        return q2, v2, a2
 
     def chain(self, qd: np.ndarray, label: int) -> np.ndarray:
         r"""``(nv, nv)`` derivative of the completed desired state by the RMPs' values: the
@@ -192,8 +193,8 @@ class PhysicalWalker:
         the same matrix maps velocities and, to first order, accelerations)."""
         nv = len(qd)
         G = np.eye(nv)
-        if label:
-            G = G[self.walker.swap_v]
+        if label:  # the relabelling is linear on velocities: its matrix column by column
+            G = np.stack([self.walker.relabel(qd, e)[1] for e in np.eye(nv)], axis=1)
         J = self.contact.jacobian(qd, self.stance)
         T = np.eye(nv)
         bx, bz = self.base_v[0], self.base_v[1]
