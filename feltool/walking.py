@@ -339,7 +339,9 @@ class PhysicalLoop:
                         impacts.append((k + 1, True, steps[-1].length))
                         steps.append(StepStats())
                         if not clock:
-                            j = -1  # the phase restarts at the touchdown
+                            # the phase restarts at the touchdown: step i of the cycle starts
+                            # at sample i n / steps_per_cycle (the increment below adds 1)
+                            j = len(impacts) * (n // W.steps_per_cycle) - 1
                             if len(impacts) >= W.steps_per_cycle:
                                 # the cycle ends at this touchdown (the sub-step's rest, under
                                 # h, has run on already)

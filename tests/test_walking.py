@@ -404,3 +404,29 @@ def test_lifting_foot_is_counted_as_not_walking_in_the_summary():
     agg = aggregate([res.summary])
     assert agg["n_not_walking"] == 1 and agg["not_walking"] == {"normal_force": 1}
     assert agg["n_walked"] == 0
+
+
+def test_touchdown_phase_ends_the_cycle_at_the_touchdown():
+    """phase: touchdown: the cycle lasts until the step's touchdown (not the clock's n steps)."""
+    w = three_link()
+    walker = PhysicalWalker(w, ContactChecks(friction=5.0, effort=np.full(2, 1e4)), 1,
+                            "touchdown")
+    kp = np.array([0, 0, 4000.0, 400.0, 400.0])
+    C = np.eye(5)
+    C[4, 2] = 1.0
+    law = FeedbackLaw(C, kp, kp / 10, np.array([0, 0, 0, 0, 1], bool),
+                      np.array([0, 0, 1, 0, 0], bool), np.array([0, 0, 0.1, 0, 0]), {})
+    dyn = make_dynamics(w.model)
+    loop = PhysicalLoop(dyn, law, walker, 0.005, 2)
+    n = 60  # the touchdown comes after about 0.67 s, beyond the nominal 0.3 s
+    qd = np.array([0, 0, 0.1, -0.05, -0.4])
+    P, Z = np.tile(qd, (n, 1)), np.zeros((n, 5))
+    q, v = loop.initial_state(P, Z)
+    log = loop.run_cycle(dyn, q, v, P, Z, Z)
+    assert log.fall is None and len(log.impacts) == 1
+    assert len(log.q) == log.impacts[0][0] > n
+    assert log.phase_index.max() == n - 1  # the last sample is held past the nominal step
+    # and a step that never lands is not walking
+    loop.walker.steps_per_cycle = 2
+    log2 = loop.run_cycle(dyn, q, v, P[:20], Z[:20], Z[:20])
+    assert log2.fall is not None and "not walking" in log2.fall
