@@ -8,7 +8,8 @@ height crossing :math:`z = 0` moving down, ahead of the stance foot and outside 
 zone, located inside the sub-step by root finding (Brent's method on the sub-step's length), not
 by the clock. At touchdown the landing foot's rigid impact (``pin.impulseDynamics``) changes the
 velocities, the legs are relabelled (the landing leg becomes "left") and the state is shifted
-so that the new stance foot is at :math:`x = 0`; the rest of the sub-step runs on.
+so that the new stance foot is at :math:`x = 0`; the rest of the sub-step runs on (with
+``phase: touchdown`` the next control step starts at the touchdown instead).
 
 Control, in generalized coordinates :math:`(x, z, \vartheta, q_j)` of the floating base:
 the desired joint and pitch trajectories come from the RMPs; the desired base position follows
@@ -331,7 +332,7 @@ class PhysicalLoop:
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
                 ended = False
                 for i_sub in range(self.substeps):
-                    q, v, s = self._substep(contact, q, v, tau, h, steps, Force, k)
+                    q, v, s = self._substep(contact, q, v, tau, h, steps, Force, k, clock)
                     if s is not None:
                         t_td = k * self.dt + i_sub * h + s
                         steps[-1].duration = t_td - t_step
@@ -340,13 +341,12 @@ class PhysicalLoop:
                         steps.append(StepStats())
                         if not clock:
                             # the phase restarts at the touchdown: step i of the cycle starts
-                            # at sample i n / steps_per_cycle (the increment below adds 1)
+                            # at sample i n / steps_per_cycle (the increment below adds 1), and
+                            # the next control step starts at the touchdown (the sub-step's
+                            # rest is not run); the cycle ends at its last touchdown
                             j = len(impacts) * (n // W.steps_per_cycle) - 1
-                            if len(impacts) >= W.steps_per_cycle:
-                                # the cycle ends at this touchdown (the sub-step's rest, under
-                                # h, has run on already)
-                                ended = True
-                                break
+                            ended = len(impacts) >= W.steps_per_cycle
+                            break
                 fall = W.fallen(q, v)
                 if fall or ended:
                     break
@@ -386,9 +386,10 @@ class PhysicalLoop:
         dq = h / 6.0 * (v + 2 * v2 + 2 * v3 + v4)
         return pin.integrate(model, q, dq), v + h / 6.0 * (a1 + 2 * a2 + 2 * a3 + a4)
 
-    def _substep(self, contact: Contact, q, v, tau, h, steps, Force, k):
+    def _substep(self, contact: Contact, q, v, tau, h, steps, Force, k, finish: bool = True):
         """Integrate one sub-step; returns ``(q, v, s)`` with ``s`` the touchdown's time in the
-        sub-step [s], or None."""
+        sub-step [s], or None. After a touchdown the rest of the sub-step runs on when
+        ``finish`` (clock phase); otherwise the state at the touchdown is returned."""
         W, chk, st = self.walker, self.walker.checks, steps[-1]
         res = contact.stance(q, v, tau, W.stance)
         Fx, Fz = res.force
@@ -455,7 +456,7 @@ class PhysicalLoop:
         qn, vn = contact.hold(qn, vn, W.stance, np.array([tx, 0.0]))
         qn[W.base_q[0]] -= tx
         rest = h - s
-        if rest > 1e-12:
+        if finish and rest > 1e-12:
             qn, vn = self._rk4(contact, qn, vn, tau, rest)
             qn, vn = contact.hold(qn, vn, W.stance, np.zeros(2))
         return qn, vn, s
