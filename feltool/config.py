@@ -400,6 +400,9 @@ class WalkingConfig(Strict):
     scuff_exempt_m: NonNegFloat | None = Field(None, description="Physical walker: the swing "
         "foot may be below the ground within this horizontal distance of the stance foot, in "
         "[m]; default 0.05 for a walker without knees (one legs pair), 0 with knees.")
+    clearance_tol_m: NonNegFloat = Field(0.001, description="Physical walker: how far the "
+        "swing foot may graze below the ground outside the scuffing zone (e.g. the trailing "
+        "foot just after lift-off) before the seed is not walking, in [m]; 0 = strict.")
     phase: Literal["clock", "touchdown"] = Field("clock", description="Physical walker: the "
         "RMPs run on time (clock), or their phase restarts at every touchdown (touchdown: a "
         "cycle lasts steps_per_cycle steps, and a step longer than the nominal one holds the "

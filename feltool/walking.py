@@ -44,8 +44,6 @@ from feltool.dynamics import Dynamics
 from feltool.errors import RobotError
 from feltool.walker_model import WalkerModel
 
-CLEARANCE_TOL = 1e-6  # [m], a foot this far below the ground counts as below it
-
 
 @dataclass
 class ContactChecks:
@@ -60,6 +58,8 @@ class ContactChecks:
         effort: Motor effort limits ``(k,)`` in [N m] (inf: none).
         torques: ``report`` (a motor torque over its limit is not walking), ``saturate`` (clip
             it, count the steps), ``ignore``.
+        clearance_tol: How far the swing foot may graze below the ground outside the scuffing
+            zone (e.g. the trailing foot just after lift-off), in [m].
     """
 
     friction: float = 0.7
@@ -67,6 +67,7 @@ class ContactChecks:
     scuff_exempt: float = 0.0
     effort: np.ndarray | None = None
     torques: str = "report"
+    clearance_tol: float = 1e-3
 
 
 @dataclass
@@ -411,16 +412,18 @@ class PhysicalLoop:
         (sx, sz), _ = contact.foot_state(q1, v1, W.swing)
         ahead = sx - anchor[0]
         exempt = abs(ahead) < chk.scuff_exempt
-        if sz >= -CLEARANCE_TOL or exempt:
+        landing = not exempt and ahead > 0.0 and z0 > 0.0 and sz <= 0.0
+        if not landing:
             if not exempt:
                 st.min_clearance = min(st.min_clearance, float(sz))
+                if sz < -chk.clearance_tol:
+                    where = "behind" if ahead <= 0.0 else "ahead of"
+                    raise NotWalking(
+                        f"the swing foot is {-sz * 1e3:.3g} mm below the ground, {abs(ahead):.3g}"
+                        f" m {where} the stance foot, away from a touchdown (walking."
+                        f"scuff_exempt_m = {chk.scuff_exempt}, walking.clearance_tol_m = "
+                        f"{chk.clearance_tol})", "clearance")
             return q1, v1, None
-        if z0 <= 0.0 or ahead <= 0.0:
-            st.min_clearance = min(st.min_clearance, float(sz))
-            where = "behind" if ahead <= 0.0 else "ahead of"
-            raise NotWalking(f"the swing foot is {-sz * 1e3:.3g} mm below the ground, "
-                             f"{abs(ahead):.3g} m {where} the stance foot, away from a touchdown "
-                             f"(walking.scuff_exempt_m = {chk.scuff_exempt})", "clearance")
         # Touchdown inside this sub-step: its time by Brent's method on the sub-step's length.
         def height(s):
             qs, vs = self._rk4(contact, q, v, tau, s)
