@@ -403,10 +403,14 @@ class WalkingConfig(Strict):
     clearance_tol_m: NonNegFloat = Field(0.001, description="Physical walker: how far the "
         "swing foot may graze below the ground outside the scuffing zone (e.g. the trailing "
         "foot just after lift-off) before the seed is not walking, in [m]; 0 = strict.")
-    phase: Literal["clock", "touchdown"] = Field("clock", description="Physical walker: the "
-        "RMPs run on time (clock), or their phase restarts at every touchdown (touchdown: a "
-        "cycle lasts steps_per_cycle steps, and a step longer than the nominal one holds the "
-        "last sample).")
+    phase: Literal["clock", "touchdown", "mechanical"] = Field("clock", description="Physical "
+        "walker: the RMPs run on time (clock); their phase restarts at every touchdown "
+        "(touchdown: a cycle lasts steps_per_cycle steps, a step longer than the nominal one "
+        "holds the last sample); or, restarting at touchdown too, the phase within a step "
+        "follows the centre of mass's horizontal position over the stance foot through its "
+        "desired values (mechanical, as in hybrid zero dynamics; the desired velocities scaled "
+        "by the phase's rate; the desired centre of mass must move forward all through the "
+        "step).")
     # -- pinned walker -----------------------------------------------------------------------
     absolute: dict[str, list[str]] | None = Field(None, min_length=1, description="Pinned "
         "walker: for every joint, the joints whose angles add up to its link's absolute angle "

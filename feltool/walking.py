@@ -117,8 +117,10 @@ class PhysicalWalker:
         walker: The walker model.
         checks: The contact checks.
         steps_per_cycle: Touchdowns per learning cycle.
-        phase: ``clock`` (the RMPs run on time) or ``touchdown`` (their phase restarts at every
-            touchdown; a cycle lasts ``steps_per_cycle`` steps).
+        phase: ``clock`` (the RMPs run on time), ``touchdown`` (their phase restarts at every
+            touchdown; a cycle lasts ``steps_per_cycle`` steps) or ``mechanical`` (as touchdown,
+            the phase within a step following the centre of mass's horizontal position over the
+            stance foot, :meth:`PhysicalLoop._mechanical`).
         fall_row, fall_max: fall when ``|fall_row @ q| > fall_max`` [rad].
         stance, swing: the feet's names in stance-relative labels.
     """
@@ -216,6 +218,14 @@ class PhysicalWalker:
         BW = self.B.T @ W
         return np.linalg.solve(BW @ self.B, BW @ tau_w)
 
+    def com_x(self, q: np.ndarray, v: np.ndarray) -> tuple[float, float]:
+        """The centre of mass's horizontal position over the stance foot in [m] and its rate
+        in [m/s]."""
+        c = self.contact
+        com = pin.centerOfMass(c.model, c.data, q, v)
+        foot, _ = c.foot_state(q, v, self.stance)
+        return float(com[0] - foot[0]), float(c.data.vcom[0][0])
+
     def fallen(self, q: np.ndarray, v: np.ndarray) -> str | None:
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             return "the state became non-finite"
@@ -276,6 +286,7 @@ class PhysicalLoop:
         nv = walker.walker.model.nv
         self.error_rows = np.zeros(nv) if error_rows is None else np.asarray(error_rows, float)
         self.allocation = None
+        self._ends: dict = {}
 
     def initial_state(self, P: np.ndarray, Pv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Start on the desired trajectory, stabilized quantities on target, stance foot at the
@@ -291,7 +302,7 @@ class PhysicalLoop:
         W = self.walker
         contact = W.contact_for(getattr(plant, "model", W.walker.model))
         n, nv = P.shape
-        clock = W.phase == "clock"
+        clock = W.phase == "clock"  # else touchdown or mechanical: the cycle ends at touchdowns
         n_max = n if clock else 3 * n
         k_motors = W.B.shape[1]
         Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n_max, nv)) for _ in range(8))
@@ -308,10 +319,14 @@ class PhysicalLoop:
                     break
                 k = m
                 jj = min(j, n - 1)
-                index[k] = jj
                 label = len(impacts) % 2 if W.steps_per_cycle % 2 == 0 else 0
                 labels[k] = label
-                qd, vd, ad = W.complete(*W.labelled(P[jj], Pv[jj], Pa[jj], label))
+                if W.phase == "mechanical":
+                    jj, p, pv, pa = self._mechanical(q, v, P, Pv, Pa, len(impacts), label)
+                else:
+                    p, pv, pa = P[jj], Pv[jj], Pa[jj]
+                index[k] = jj
+                qd, vd, ad = W.complete(*W.labelled(p, pv, pa, label))
                 Q[k], V[k], Qd[k], Vd[k], Ad[k] = q, v, qd, vd, ad
                 m += 1
                 r, rd = self.law.references(qd[None], vd[None])
@@ -361,6 +376,39 @@ class PhysicalLoop:
         return WalkLog(Q[sl], V[sl], U[sl], q, v, Qd[sl], Vd[sl], Ad[sl], labels[sl],
                        impacts, fall, Urows[sl], Uerr[sl], steps, index[sl], Tau[sl], Force[sl],
                        hits, kind)
+
+    def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int):
+        r"""The RMPs' values at the mechanical phase. The phase variable is the centre of
+        mass's horizontal position over the stance foot, :math:`x` (the stance foot is at
+        x = 0), whose desired values over the step's samples, :math:`x_d(t_i)`, must increase:
+        the current :math:`x` gives the fractional sample :math:`t^*` with :math:`x_d(t^*) = x`
+        (held at the step's ends), the samples are interpolated linearly at :math:`t^*`, the
+        velocities scaled by :math:`r = \dot x / \dot x_d(t^*)` and the accelerations by
+        :math:`r^2` (the :math:`\dot r` term neglected). Returns ``(nearest sample, p, pv, pa)``."""
+        W = self.walker
+        n = len(P)
+        ns = n // W.steps_per_cycle
+        i0 = (step % W.steps_per_cycle) * ns
+        key = (id(P), i0, label)
+        if self._ends.get("key") != key:
+            x, xv = np.empty(ns), np.empty(ns)
+            for i in range(ns):
+                qd, vd, _ = W.complete(*W.labelled(P[i0 + i], Pv[i0 + i], Pa[i0 + i], label))
+                x[i], xv[i] = W.com_x(qd, vd)
+            if np.any(np.diff(x) <= 0):
+                raise NotWalking("walking.phase: mechanical needs the desired centre of mass to "
+                                 "move forward over the stance foot through the whole step",
+                                 "phase")
+            self._ends = {"key": key, "x": x, "xv": xv}
+        x, xv = self._ends["x"], self._ends["xv"]
+        xc, xc_rate = W.com_x(q, v)
+        f = float(np.interp(xc, x, np.arange(ns)))
+        a = min(int(f), ns - 2)
+        w = f - a
+        lerp = lambda X: (1 - w) * X[i0 + a] + w * X[i0 + a + 1]  # noqa: E731
+        x_rate = (1 - w) * xv[a] + w * xv[a + 1]
+        rate = xc_rate / x_rate if x_rate > 1e-9 else 1.0
+        return i0 + int(round(f)), lerp(P), rate * lerp(Pv), rate**2 * lerp(Pa)
 
     def jacobian_derivatives(self, log: WalkLog) -> tuple:
         """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with
