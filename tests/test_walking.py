@@ -430,3 +430,38 @@ def test_touchdown_phase_ends_the_cycle_at_the_touchdown():
     loop.walker.steps_per_cycle = 2
     log2 = loop.run_cycle(dyn, q, v, P[:20], Z[:20], Z[:20])
     assert log2.fall is not None and "not walking" in log2.fall
+
+
+def test_mechanical_phase_follows_the_centre_of_mass():
+    """phase: mechanical: a state on the desired trajectory at sample i (centre of mass where
+    the desired one is then) gets sample i back, with the desired velocity at the nominal rate;
+    moving twice as fast doubles the desired velocity and quadruples the acceleration."""
+    w = three_link()
+    walker = PhysicalWalker(w, ContactChecks(), 1, "mechanical")
+    law = FeedbackLaw(np.eye(5), np.zeros(5), np.zeros(5), np.zeros(5, bool), np.zeros(5, bool),
+                      np.zeros(5), {})
+    loop = PhysicalLoop(make_dynamics(w.model), law, walker, 0.005, 1)
+    n = 100
+    t = np.arange(n) * 0.005
+    P, Pv, Pa = np.zeros((n, 5)), np.zeros((n, 5)), np.zeros((n, 5))
+    P[:, 3] = -0.3 + 1.2 * t + 0.4 * t**2  # the stance leg sweeps forward, accelerating
+    Pv[:, 3] = 1.2 + 0.8 * t
+    Pa[:, 3] = 0.8
+    P[:, 4] = 0.2
+    for i in (0, 17, 50, 98):
+        q, v, _ = walker.complete(P[i], Pv[i], Pa[i])
+        j, p, pv, pa = loop._mechanical(q, v, P, Pv, Pa, 0, 0)
+        assert j == i
+        np.testing.assert_allclose(p, P[i], atol=1e-9)
+        np.testing.assert_allclose(pv, Pv[i], atol=1e-9)
+        j, p, pv, pa = loop._mechanical(q, 2 * v, P, Pv, Pa, 0, 0)
+        np.testing.assert_allclose(pv, 2 * Pv[i], atol=1e-9)
+        np.testing.assert_allclose(pa, 4 * Pa[i], atol=1e-9)
+    # halfway between two samples: linear interpolation
+    q0, v0, _ = walker.complete(P[40], Pv[40], Pa[40])
+    q1, v1, _ = walker.complete(P[41], Pv[41], Pa[41])
+    x0, x1 = walker.com_x(q0, v0)[0], walker.com_x(q1, v1)[0]
+    qm = 0.5 * (q0 + q1)
+    j, p, _, _ = loop._mechanical(qm, v0, P, Pv, Pa, 0, 0)
+    f = 40 + (walker.com_x(qm, v0)[0] - x0) / (x1 - x0)
+    np.testing.assert_allclose(p[3], np.interp(f, np.arange(n), P[:, 3]), atol=1e-12)
