@@ -156,6 +156,9 @@ class JointConfig(Strict):
     learn: LearnConfig | None = Field(None, description="Learn this joint's RMP by FEL.")
     primitive: PrimitiveOverride | None = Field(None, description="Per-joint RMP settings.")
     posture: FiniteFloat = Field(0.0, description="Angle a locked joint is held at, in [rad].")
+    follow_demo: bool = Field(False, description="The forward trajectory is the demonstration "
+        "itself at the control rate, not its RMP fit (e.g. a designed gait's joints: an impact's "
+        "velocity jump is beyond a smooth periodic RMP); not with learn.")
 
     @model_validator(mode="after")
     def _role_fields(self) -> JointConfig:
@@ -172,6 +175,8 @@ class JointConfig(Strict):
                 self.learn is None or self.learn.init == "demo"):
             problems.append(f"a '{self.role}' joint needs a 'demo' or 'learn' (with init random "
                             "or zero) to define its RMP")
+        if self.follow_demo and (self.demo is None or self.learn is not None):
+            problems.append("'follow_demo' needs a 'demo' and no 'learn'")
         if self.role == "locked" and (self.learn or self.demo or self.gains):
             problems.append("a 'locked' joint takes only 'posture'")
         if problems:

@@ -250,6 +250,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     prims: dict[int, RhythmicPrimitive] = {}
     thetas: dict[int, np.ndarray] = {}
     fine_t = np.linspace(0.0, T, 2000, endpoint=False)
+    fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for i, name in enumerate(joints):
         jc = cfg.joints[name]
         settings = cfg.primitives.model_dump()
@@ -260,11 +261,19 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         prims[i] = prim
         if jc.demo is not None:
             d = jc.demo
-            q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t, d.harmonics, d.delay)
+            q, v, a = _demo_trajectory(d, T, fine_t)
             thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=d.mean)
+            if jc.follow_demo:
+                fixed[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
         else:
             thetas[i] = np.zeros(prim.n_params)
-    primitives = PrimitiveSet(prims, nv)
+    primitives = PrimitiveSet(prims, nv, fixed)
+    if fixed and (cfg.backend == "compiled" or cfg.learning.sensitivity == "casadi"
+                  or cfg.learning.step == "per_step"):
+        raise ConfigError([(f"joints.{joints[i]}.follow_demo", "needs backend pinocchio or "
+                            "casadi, learning.sensitivity exact or finite_difference and "
+                            "learning.step per_cycle") for i in fixed],
+                          str(source) if source else None)
     theta_demo = np.concatenate([thetas[i] for i in range(nv)])
 
     # Feedback laws.
@@ -501,6 +510,12 @@ def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
                   w.guard.value, 1.0 if w.guard.direction == "rising" else -1.0,
                   tuple(w.guard.window), w.steps_per_cycle, w.impact, fall_row,
                   w.fall.max_abs if w.fall else np.inf, free, foot, placement)
+
+
+def _demo_trajectory(d, T: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A demonstration's position [rad], velocity [rad/s] and acceleration [rad/s^2] at times
+    ``t`` [s] of a period ``T`` [s]."""
+    return sine_demo(d.mean, d.amplitude, T, d.phase, t, d.harmonics, d.delay)
 
 
 def _physical_joints(cfg: ExperimentConfig, wm, source: Path | None) -> None:

@@ -465,3 +465,34 @@ def test_mechanical_phase_follows_the_centre_of_mass():
     j, p, _, _ = loop._mechanical(qm, v0, P, Pv, Pa, 0, 0)
     f = 40 + (walker.com_x(qm, v0)[0] - x0) / (x1 - x0)
     np.testing.assert_allclose(p[3], np.interp(f, np.arange(n), P[:, 3]), atol=1e-12)
+
+
+def test_follow_demo_gives_the_demonstration_itself():
+    """A follow_demo joint's forward trajectory is its demonstration at the control rate (here
+    the sine and its derivatives in closed form), not its RMP fit."""
+    from feltool.errors import ConfigError
+    from feltool.experiment import build_experiment
+
+    raw = physical_config()
+    raw["joints"]["left_hip"]["follow_demo"] = True
+    exp = build_experiment(raw)
+    theta = exp.initial_parameters(0)
+    Q, V, A = exp.primitives.desired(theta)
+    T, n = 1.0, 200
+    t = np.arange(n) * T / n
+    w = 2 * np.pi / T
+    q = LEG["mean"] + LEG["amplitude"] * np.sin(w * t + LEG["phase"])
+    qd = LEG["amplitude"] * w * np.cos(w * t + LEG["phase"])
+    qdd = -LEG["amplitude"] * w**2 * np.sin(w * t + LEG["phase"])
+    for k, (amp, ph) in enumerate(LEG["harmonics"], start=2):
+        q += amp * np.sin(k * w * t + ph)
+        qd += amp * k * w * np.cos(k * w * t + ph)
+        qdd -= amp * (k * w) ** 2 * np.sin(k * w * t + ph)
+    i = exp.joints.index("left_hip")
+    np.testing.assert_allclose(Q[:, i], q, atol=1e-12)
+    np.testing.assert_allclose(V[:, i], qd, atol=1e-10)
+    np.testing.assert_allclose(A[:, i], qdd, atol=1e-8)
+    raw["joints"]["left_hip"]["learn"] = {"init": "random"}
+    with pytest.raises(ConfigError) as err:
+        build_experiment(raw)
+    assert "joints.left_hip" in str(err.value) and "follow_demo" in str(err.value)
