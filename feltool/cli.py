@@ -195,6 +195,29 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_walking(summary: dict) -> None:
+    """Physical walkers: per seed, whether it walked, and the gait's numbers."""
+    walkers = [s for s in summary["seeds"] if isinstance(s.get("walking"), dict)]
+    if not walkers:
+        return
+    fmt = lambda x, f: "-" if x is None else format(x, f)  # noqa: E731
+    for s in walkers:
+        w = s["walking"]
+        rho = (s.get("poincare") or {}).get("spectral_radius")
+        head = "walked" if w["walked"] else f"NOT WALKING ({w['not_walking'] or 'fell'})"
+        print(f"  seed {s['seed']} {head}: {w.get('steps', 0)} steps, step "
+              f"{fmt(w.get('step_length_m'), '.3f')} m, speed {fmt(w.get('speed_m_per_s'), '.3f')}"
+              f" m/s, CoT {fmt(w.get('cost_of_transport'), '.3f')}, torso RMS "
+              f"{fmt(w.get('stabilized_rms_last_rad'), '.3g')} rad, ratio "
+              f"{fmt(s.get('fb_ratio'), '.2%')}, Poincare rho {fmt(rho, '.3f')}; min F_n "
+              f"{fmt(w.get('min_normal_force_N'), '.4g')} N, max |F_t|/F_n "
+              f"{fmt(w.get('max_friction_ratio'), '.3f')}")
+    agg = summary["aggregate"]
+    kinds = ", ".join(f"{k} {c}" for k, c in agg.get("not_walking", {}).items())
+    print(f"  walked without falling: {agg.get('n_walked', 0)}/{len(walkers)} seeds; not "
+          f"walking: {agg.get('n_not_walking', 0)}" + (f" ({kinds})" if kinds else ""))
+
+
 def print_summary(summary: dict, out_dir: Path) -> None:
     agg = summary["aggregate"]
     print(f"{summary['config']}: {agg['n_seeds']} seeds, error signal = feedback of "
@@ -215,6 +238,7 @@ def print_summary(summary: dict, out_dir: Path) -> None:
                      for kind, d in (("position", lim["joint_limit_steps"]),
                                      ("torque", lim["torque_limit_steps"])) if d]
             print(f"  seed {s['seed']} hit the URDF's " + "; ".join(parts))
+    _print_walking(summary)
     conv = agg["converged_cycle_max"]
     print(f"  converged (below 5 % of the initial feedback for good): {agg['n_converged']}/"
           f"{agg['n_seeds']} seeds" + (f", mean cycle {agg['converged_cycle_mean']:.1f}, "

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from feltool.config import ExperimentConfig, apply_overrides, parse_config, read_yaml
+from feltool.config import ExperimentConfig, JointConfig, apply_overrides, parse_config, read_yaml
 from feltool.control import FeedbackLaw, FrameAngle
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
@@ -28,6 +28,7 @@ from feltool.rmp import PrimitiveSet, RhythmicPrimitive, samples_demo, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
 from feltool.seed import CycleOutcome, SeedResult, run_seed, stabilization_errors  # noqa: F401
 from feltool.simulate import ClosedLoop, Limits
+from feltool.walker_config import physical_loop, walker_model
 
 
 @dataclass
@@ -148,8 +149,15 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
                                package_dirs=[str(d) for d in dirs])
         except RobotError as exc:
             problems.append(("robot", str(exc)))
+    named = None
+    if robot is not None and cfg is not None and cfg.walking is not None and \
+            cfg.walking.physical:
+        wm, walker_problems = walker_model(cfg.walking, robot)
+        problems += walker_problems
+        if wm is not None:
+            named = wm.robot  # the names include the base joints
     if robot is not None:
-        problems += _name_problems(raw, robot)
+        problems += _name_problems(raw, named or robot)
         if cfg is not None and cfg.plant is not None:
             problems += plant_problems(cfg.plant, robot, source.parent if source else None)
     if problems:
@@ -226,6 +234,11 @@ def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
 def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experiment:
     """Build an :class:`Experiment` from a raw config mapping."""
     cfg, full_robot = validate(raw, source)
+    wm = None
+    if cfg.walking is not None and cfg.walking.physical:
+        wm, _ = walker_model(cfg.walking, full_robot)
+        full_robot = wm.robot
+        _physical_joints(cfg, wm, source)
     locked = {n: 0.0 for n in full_robot.joint_names if n not in cfg.joints}
     locked.update({n: jc.posture for n, jc in cfg.joints.items() if jc.role == "locked"})
     robot = reduce_robot(full_robot, locked)
@@ -249,6 +262,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     prims: dict[int, RhythmicPrimitive] = {}
     thetas: dict[int, np.ndarray] = {}
     fine_t = np.linspace(0.0, T, 2000, endpoint=False)
+    fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for i, name in enumerate(joints):
         jc = cfg.joints[name]
         settings = cfg.primitives.model_dump()
@@ -259,16 +273,20 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         prims[i] = prim
         if jc.demo is not None:
             d = jc.demo
-            if d.kind == "samples":
-                q, v, a = samples_demo(d.q, d.v, d.a, T, fine_t)
-                goal = float(np.mean(q))
-            else:
-                q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t, d.harmonics, d.delay)
-                goal = d.mean
+            q, v, a = _demo_trajectory(d, T, fine_t)
+            goal = float(np.mean(q)) if d.kind == "samples" else d.mean
             thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=goal)
+            if jc.follow_demo:
+                fixed[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
         else:
             thetas[i] = np.zeros(prim.n_params)
-    primitives = PrimitiveSet(prims, nv)
+    primitives = PrimitiveSet(prims, nv, fixed)
+    if fixed and (cfg.backend == "compiled" or cfg.learning.sensitivity == "casadi"
+                  or cfg.learning.step == "per_step"):
+        raise ConfigError([(f"joints.{joints[i]}.follow_demo", "needs backend pinocchio or "
+                            "casadi, learning.sensitivity exact or finite_difference and "
+                            "learning.step per_cycle") for i in fixed],
+                          str(source) if source else None)
     theta_demo = np.concatenate([thetas[i] for i in range(nv)])
 
     # Feedback laws.
@@ -383,9 +401,18 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         if model_learner is not None:
             raise ConfigError([("learning.model", "model learning is not supported for "
                                                   "walking/actuated robots yet")], src)
-        hybrid = HybridLoop(plant, law, _allocation(cfg, robot, joints, src),
-                            _walker(cfg, robot, joints, src), actuated, dt, cfg.sim.substeps,
-                            cfg.sim.integrator, error_mask)
+        if wm is not None:
+            if cfg.actuation is not None:
+                raise ConfigError([("actuation", "a physical walker's motors are its URDF "
+                                                 "joints (every joint but the base's); remove "
+                                                 "the actuation block")], src)
+            if cfg.plant is not None:
+                raise ConfigError([("plant", "not supported for a physical walker yet")], src)
+            hybrid = physical_loop(cfg, wm, law, dynamics, joints, error_mask, src)
+        else:
+            hybrid = HybridLoop(plant, law, _allocation(cfg, robot, joints, src),
+                                _walker(cfg, robot, joints, src), actuated, dt,
+                                cfg.sim.substeps, cfg.sim.integrator, error_mask)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
                      init, source, hybrid, plant, model_learner)
     if L.sensitivity == "casadi" and learner.n_learned:
@@ -496,6 +523,29 @@ def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
                   w.guard.value, 1.0 if w.guard.direction == "rising" else -1.0,
                   tuple(w.guard.window), w.steps_per_cycle, w.impact, fall_row,
                   w.fall.max_abs if w.fall else np.inf, free, foot, placement)
+
+
+def _demo_trajectory(d, T: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A demonstration's position [rad], velocity [rad/s] and acceleration [rad/s^2] at times
+    ``t`` [s] of a period ``T`` [s]."""
+    if d.kind == "samples":
+        return samples_demo(d.q, d.v, d.a, T, t)
+    return sine_demo(d.mean, d.amplitude, T, d.phase, t, d.harmonics, d.delay)
+
+
+def _physical_joints(cfg: ExperimentConfig, wm, source: Path | None) -> None:
+    """A physical walker's base joints default to passive; no joint may be locked (the walker
+    model's frames and relabelling are of the whole robot)."""
+    for name in wm.base:
+        if name not in cfg.joints:
+            cfg.joints[name] = JointConfig.model_validate(
+                {"role": "passive", "demo": {"kind": "sine", "amplitude": 0.0}})
+    locked = [n for n in wm.robot.joint_names
+              if n not in cfg.joints or cfg.joints[n].role == "locked"]
+    if locked:
+        raise ConfigError([("joints", "a physical walker cannot lock joints; configure "
+                                      + ", ".join(locked) + " (e.g. role: passive)")],
+                          str(source) if source else None)
 
 
 def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actuated: np.ndarray,

@@ -419,4 +419,18 @@ def aggregate(seeds: list[dict[str, Any]]) -> dict[str, Any]:
         "fb_final_mean": float(np.mean([s["fb_final"] for s in ok])) if ok else None,
         "fb_ratio_max": max(ratios) if ratios else None,
         "steps_per_s_mean": float(np.mean(steps)) if steps else None,
+        **_walking_aggregate(seeds),
     }
+
+
+def _walking_aggregate(seeds: list[dict[str, Any]]) -> dict[str, Any]:
+    """Physical walkers: seeds that walked every step, and the not-walking kinds' counts."""
+    walks = [s["walking"] for s in seeds if isinstance(s.get("walking"), dict)]
+    if not walks:
+        return {}
+    kinds: dict[str, int] = {}
+    for w in walks:
+        if w["not_walking"]:
+            kinds[w["not_walking"]] = kinds.get(w["not_walking"], 0) + 1
+    return {"n_walked": sum(bool(w["walked"]) for w in walks),
+            "n_not_walking": sum(kinds.values()), "not_walking": kinds}
