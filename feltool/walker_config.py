@@ -16,7 +16,7 @@ from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics
 from feltool.errors import ConfigError, RobotError
 from feltool.robot import Robot
-from feltool.walker_model import FootSpec, WalkerModel, build_walker_model
+from feltool.walker_model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
 from feltool.walking import ContactChecks, PhysicalLoop, PhysicalWalker
 
 
@@ -25,9 +25,11 @@ def walker_model(w: WalkingConfig, robot: Robot) -> tuple[WalkerModel | None, li
     problems found (the model is None when it cannot be built)."""
     problems: list[tuple[str, str]] = []
     names = robot.joint_names
+    # a root-leg walker (the compass gait) pairs the base's pitch with its hip: [base_pitch, hip]
+    leg_names = names + (list(BASE_JOINTS) if w.base == "planar" else [])
     for i, pair in enumerate(w.legs or []):
         for j, name in enumerate(pair):
-            if name not in names:
+            if name not in leg_names:
                 problems.append((f"walking.legs.{i}.{j}", f"robot '{robot.name}' has no joint "
                                  f"'{name}' (its joints: {', '.join(names)})"))
     if isinstance(w.base, list):
@@ -62,10 +64,12 @@ def _chain_problems(w: WalkingConfig, wm: WalkerModel) -> list[tuple[str, str]]:
     problems = []
     children = {j: [c for c in range(1, m.njoints) if m.parents[c] == j] for j in range(m.njoints)}
     side = {"left": 0, "right": 1}
+    # a root-leg walker's root leg carries the other leg: the second joint of a chained pair
+    carried = {m.getJointId(p[1]) for p in w.legs if _chained(m, p)}
     for foot, fid in wm.feet.items():
         joint = m.frames[fid].parentJoint
         where = f"walking.feet.{foot}"
-        if children[joint]:
+        if [c for c in children[joint] if c not in carried]:
             problems.append((where, f"the contact point is on joint '{m.names[joint]}', which "
                              "carries further joints ("
                              + ", ".join(m.names[c] for c in children[joint])
