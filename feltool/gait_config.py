@@ -137,8 +137,10 @@ def _hip_height(walker: WalkerModel, foot: str) -> float:
 
 def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: GaitSpec,
                 settings: dict[str, Any]) -> dict[str, Any]:
-    """``raw`` with the designed gait: samples demos of its tracked and passive joints (not the
-    base's x and z, which follow from the stance foot), ``period_s`` and the slope's gravity.
+    """``raw`` with the designed gait: samples demos of its tracked, passive and stabilized joints
+    (not the base's x and z, which follow from the stance foot; a stabilized torso's demo is its
+    designed motion, the RMP's start with ``learn.init: demo``), ``period_s`` and the slope's
+    gravity.
 
     With ``steps_per_cycle: 1`` each demo is the step in stance-relative labels (a leg joint's
     trajectory then ends elsewhere than it starts: the other leg carries its label after the
@@ -168,7 +170,7 @@ def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: Gait
     for name, jc in joints.items():
         if name in BASE_JOINTS[:2] or not isinstance(jc, dict):
             continue
-        if jc.get("role") not in ("track", "passive"):
+        if jc.get("role") not in ("track", "passive", "stabilize"):
             continue
         i = walker.robot.v_index(name)
         jc["demo"] = {"kind": "samples", "q": [_num(x) for x in q[:, i]],

@@ -29,8 +29,9 @@ first and second derivatives) and solved by IPOPT:
 * swing-foot clearance :math:`z_w \ge 0` at the inner knots, except within ``scuff_exempt_m``
   horizontally of the stance foot (the scuffing rule of a walker without knees, see
   ``docs/biped.md``), where the foot may dip by up to 10 % of the walker's hip height;
-* the root link (the hip) moving forward throughout the step, :math:`\dot x \ge 0` (a
-  monotonic phase variable for phase-based tracking; not for a passive gait);
+* the root link (the hip) and the centre of mass moving forward throughout the step,
+  :math:`\dot x \ge 0`, :math:`\dot c_x \ge 0` (monotonic phase variables for phase-based
+  tracking, ``walking.phase: mechanical``; not for a passive gait);
 * the torso (``pitch_joint``) on average at ``pitch_target``, its deviation penalised.
 
 Cost: :math:`\int u^T u \, dt` (trapezoidal), scaled by :math:`(m g \ell)^{-2}`. ``passive`` fixes
@@ -47,7 +48,11 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from feltool.dynamics.casadi_backend import symbolic_frame_kinematics, symbolic_rnea
+from feltool.dynamics.casadi_backend import (
+    symbolic_center_of_mass,
+    symbolic_frame_kinematics,
+    symbolic_rnea,
+)
 from feltool.errors import FeltoolError, InputError
 from feltool.walker_model import WalkerModel
 
@@ -292,7 +297,7 @@ GROUPS = {
     "impulse": "the impact impulse's friction cone",
     "liftoff": "the trailing foot lifting off after the impact",
     "clearance": "swing-foot clearance",
-    "progress": "the hip moving forward throughout the step",
+    "progress": "the hip and the centre of mass moving forward throughout the step",
     "speed": "the speed (step length / duration)",
     "torso": "the torso's target pitch",
     "bounds": "torque, joint or duration limits",
@@ -365,7 +370,7 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
     dip = 0.1 * ell
     knot, interval = _knot_functions(W, spec, B, mg, ell, tau_scale, exempt, dip)
     U_all = U if U is not None else ca.DM.zeros(m, N + 1)
-    dyn, stance, fric, clear, clear_m, effort = knot.map(N + 1)(Q, V, A, F, U_all)
+    dyn, stance, fric, clear, clear_m, effort, com_rate = knot.map(N + 1)(Q, V, A, F, U_all)
     b.add("dynamics", dyn)
     b.add("stance", stance)
     b.add("friction", fric, 0.0, np.inf)
@@ -376,8 +381,8 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
         weights = np.ones(N + 1)
         weights[[0, N]] = 0.5
         cost = cost + h * ca.dot(ca.vec(effort), weights)
-    if not spec.passive:  # the root (the hip) never moves backwards; a passive gait is left to
-        b.add("progress", V[W.ix, :], 0.0, np.inf)  # physics alone
+    if not spec.passive:  # the hip and the centre of mass never move backwards (a passive gait
+        b.add("progress", ca.vertcat(V[W.ix, :], com_rate), 0.0, np.inf)  # is left to physics)
     b.add("collocation", interval.map(N)(Q[:, :N], V[:, :N], A[:, :N], Q[:, 1:], V[:, 1:],
                                          A[:, 1:], h))
     # Touchdown, impact, relabelling, periodicity.
@@ -468,8 +473,8 @@ def _knot_functions(W: _Walker, spec: GaitSpec, B: np.ndarray, mg: float, ell: f
     exact derivatives are built once, not once per knot).
 
     ``knot(q, v, a, lam, u) -> (dynamics, stance, friction, clearance, clearance with the
-    margin, effort)``; the margin applies fully outside the scuffing zone, fading to 0 at the
-    stance foot;
+    margin, effort, the centre of mass's horizontal velocity)``; the margin applies fully
+    outside the scuffing zone, fading to 0 at the stance foot;
     ``interval(q0, v0, a0, q1, v1, a1, h) -> collocation residuals``.
     """
     nv, m = W.nv, B.shape[1]
@@ -490,9 +495,10 @@ def _knot_functions(W: _Walker, spec: GaitSpec, B: np.ndarray, mg: float, ell: f
         outside = ca.fmin(1.0, dx * dx)
     clearance = p_sw[2] + allowance
     effort = ca.sumsqr(ca.mtimes(B, u) * tau_scale)
+    com_rate = symbolic_center_of_mass(W.model)(qp, v)[1][0]
     knot = ca.Function("knot", [q, v, a, lam, u],
                        [dynamics, dds[[0, 2]] / W.gravity, friction, clearance,
-                        clearance - spec.clearance_margin_m * outside, effort])
+                        clearance - spec.clearance_margin_m * outside, effort, com_rate])
     q1, v1, a1, h = ca.SX.sym("q1", nv), ca.SX.sym("v1", nv), ca.SX.sym("a1", nv), ca.SX.sym("h")
     interval = ca.Function("interval", [q, v, a, q1, v1, a1, h], [ca.vertcat(
         v1 - v - h / 2 * (a + a1), q1 - q - h * v - h * h / 6 * (2 * a + a1))])

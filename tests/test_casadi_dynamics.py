@@ -13,6 +13,7 @@ import pytest
 from feltool.dynamics.casadi_backend import (
     CasadiDynamics,
     symbolic_aba,
+    symbolic_center_of_mass,
     symbolic_frame_kinematics,
     symbolic_rnea,
 )
@@ -247,3 +248,15 @@ def test_frame_kinematics_match_pinocchio(robot):
             _assert_close(J, J_pin, 1e-12, f"{name} {frame} J")
             _assert_close(dp.ravel(), vel.linear, 1e-12, f"{name} {frame} dp")
             _assert_close(ddp.ravel(), acc.linear, 1e-11, f"{name} {frame} ddp")
+
+
+def test_center_of_mass_matches_pinocchio(robot):
+    """Position and velocity of the centre of mass against pin.centerOfMass, 1e-12."""
+    name, model, _, states = robot
+    data = model.createData()
+    fn = symbolic_center_of_mass(model)
+    for q, v, _, _ in states[:4]:
+        c, dc = (np.array(x).ravel() for x in fn(q, v))
+        pin.centerOfMass(model, data, q, v)
+        _assert_close(c, data.com[0], 1e-12, f"{name} com")
+        _assert_close(dc, data.vcom[0], 1e-12, f"{name} vcom")

@@ -449,6 +449,27 @@ def symbolic_frame_kinematics(model: pin.Model, frame_id: int) -> ca.Function:
                        ["q", "v", "a"], ["p", "J", "dp", "ddp"])
 
 
+def symbolic_center_of_mass(model: pin.Model) -> ca.Function:
+    """``(q, v) -> (c, dc)``: the centre of mass in the world [m] (``pin.centerOfMass``) and its
+    velocity [m/s], symbolically."""
+    _check_has_joints(model)
+    joints = _describe_joints(model)
+    q, v = ca.SX.sym("q", model.nq), ca.SX.sym("v", model.nv)
+    placements = _placements_expr(model, joints, q)
+    total = sum(float(model.inertias[jt.index].mass) for jt in joints)
+    if total <= 0.0:
+        raise InputError("the model has no mass: no centre of mass")
+    c = ca.SX.zeros(3)
+    for jt in joints:
+        inertia = model.inertias[jt.index]
+        R, p = placements[jt.index]
+        c = c + inertia.mass * (p + ca.mtimes(R, _dm(np.array(inertia.lever, dtype=float))))
+    c = c / total
+    dc = ca.mtimes(ca.mtimes(ca.jacobian(c, q), _tangent_jacobian(model, joints, q)), v)
+    return ca.Function("center_of_mass", [q, v], [ca.densify(c), ca.densify(dc)],
+                       ["q", "v"], ["c", "dc"])
+
+
 # --------------------------------------------------------------------------------------------
 # The backend
 
@@ -559,6 +580,7 @@ class CasadiDynamics:
 __all__ = [
     "CasadiDynamics",
     "symbolic_aba",
+    "symbolic_center_of_mass",
     "symbolic_frame_kinematics",
     "symbolic_rnea",
     "symbolic_rnea_derivatives",
