@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from feltool.rundir import check_run_dir, load_npz, read_metrics
+from feltool.rundir import load_npz, read_metrics
+from feltool.runstate import check_run_dir
 
 
 def _pyplot():

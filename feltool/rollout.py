@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from feltool.errors import InputError
-from feltool.rundir import check_run_dir, load_npz
+from feltool.rundir import load_npz
+from feltool.runstate import check_run_dir
 
 __all__ = ["CYCLES", "LiveStream", "load_rollouts", "parse_cycles", "replay", "run_robot",
            "write_rollout_html"]

@@ -22,8 +22,6 @@ from typing import Any
 
 import numpy as np
 
-from feltool.errors import InputError
-
 
 def atomic_write(path: Path, data: bytes | str) -> None:
     """Write a file so that a reader never sees half of it (temporary file, then rename)."""
@@ -80,15 +78,3 @@ def read_metrics(path: Path) -> list[dict[str, float]]:
 
 def write_json(path: Path, obj: Any) -> None:
     atomic_write(path, json.dumps(obj, indent=2) + "\n")
-
-
-def check_run_dir(path: Path) -> Path:
-    """A complete run directory (with a summary), else an :class:`InputError`: a run that is
-    still running, was interrupted or failed is never shown as a result."""
-    from feltool.runstate import require_complete
-
-    path = Path(path)
-    require_complete(path)
-    if not (path / "summary.json").is_file() or not (path / "metrics.csv").is_file():
-        raise InputError(f"{path}: not a feltool run directory (no summary.json / metrics.csv)")
-    return path

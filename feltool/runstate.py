@@ -179,3 +179,13 @@ def require_complete(directory: Path, meta_name: str = "run.json") -> None:
     if state not in (None, "complete"):
         raise InputError(f"{directory}: the run is {state}, not complete, so it is not a result; "
                          f"continue it with: feltool run --resume {directory}")
+
+
+def check_run_dir(path: Path) -> Path:
+    """A complete run directory (with a summary), else an :class:`InputError`: a run that is
+    still running, was interrupted or failed is never shown as a result."""
+    path = Path(path)
+    require_complete(path)
+    if not (path / "summary.json").is_file() or not (path / "metrics.csv").is_file():
+        raise InputError(f"{path}: not a feltool run directory (no summary.json / metrics.csv)")
+    return path
