@@ -167,3 +167,22 @@ def test_ilc_learners_refuse_what_they_cannot_do():
     with pytest.raises(ConfigError) as err:
         load_experiment(STANDARD, ["learning.update=ilc_p", "backend=compiled"])
     assert "backend: 'ilc_p' needs the pinocchio or casadi backend" in str(err.value)
+
+
+@pytest.mark.parametrize("sets", [
+    ["learning.update=ilc_norm_optimal", "disturbances.measurement_noise.q=0.002"],
+    ["learning.update=ilc_p", "disturbances.torque_noise=0.2"],
+    ["learning.update=gradient", "disturbances.input_delay_steps=1"],
+])
+def test_resume_continues_the_learned_sequence_and_the_noise_bit_identically(tmp_path, sets):
+    from feltool.checkpoint import Checkpointer
+
+    exp = load_experiment(STANDARD, sets)
+    whole = run_seed(exp, 3, cycles=12)
+    ck = Checkpointer(tmp_path, 3, every=4)
+    run_seed(exp, 3, cycles=6, checkpoint=ck)  # stops after cycle 6, its state kept
+    resumed = run_seed(exp, 3, cycles=12, checkpoint=ck)
+    assert [r["fb_abs_mean_error"] for r in resumed.rows] == \
+        [r["fb_abs_mean_error"] for r in whole.rows]
+    for key, value in whole.params.items():
+        np.testing.assert_array_equal(resumed.params[key], value)
