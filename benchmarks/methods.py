@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 from feltool.config import read_yaml  # noqa: E402
 from feltool.control import wrap  # noqa: E402
 from feltool.experiment import load_experiment, run_seed  # noqa: E402
-from feltool.ilc import cycle_runner  # noqa: E402
+from feltool.ilc import channels, cycle_runner  # noqa: E402
 from feltool.robustness import LEARNERS, SCENARIOS, format_scores, robustness  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -80,8 +80,7 @@ def learned_numbers(exp, learner: str) -> int:
     if learner == "feedback_only":
         return 0
     if learner.startswith("ilc"):
-        mask = (exp.learner.error_mask > 0) & (exp.loop.actuated > 0)
-        return int(mask.sum()) * exp.primitives.n_steps
+        return len(channels(exp)[0]) * exp.primitives.n_steps
     return exp.learner.n_learned
 
 

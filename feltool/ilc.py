@@ -12,7 +12,8 @@ forward trajectory stays at its initial RMP and the feedforward of cycle :math:`
 so both methods start from the same torque and the same first-cycle feedback. The error
 :math:`e_h` is the error signal exactly as FEL uses it (``learning.error``: the stabilizing
 feedback, or all feedback, as joint torques); the learned channels are the actuated joints of
-the error signal.
+the error signal (every actuated joint when a frame angle is stabilized: its torque acts on
+all joints that move the frame).
 
 * ``ilc_p`` -- P-type (Arimoto) ILC with a zero-phase Q filter,
   :math:`\Delta u_{h+1} = Q(\Delta u_h + L\, e_h(\cdot + \delta))`, where :math:`L` is a scalar
@@ -233,6 +234,17 @@ def problems(cfg: ExperimentConfig) -> list[tuple[str, str]]:
     return out
 
 
+def channels(exp: Experiment) -> tuple[np.ndarray, np.ndarray]:
+    """Joint indices of ILC's learned torques (inputs) and of its error signal (outputs): the
+    error joints, or every actuated joint when a frame angle is in the error signal (its torque
+    acts on all joints that move the frame)."""
+    actuated = exp.loop.actuated > 0
+    mask = exp.learner.error_mask > 0
+    if any(exp.loop.error_rows[row] > 0 for row in exp.law.frames):
+        mask = mask | actuated
+    return np.flatnonzero(mask & actuated), np.flatnonzero(mask)
+
+
 def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
                  loop_for: Callable) -> Callable:
     """The cycle function ``(theta, q, v, plant, theta_m=None) -> CycleOutcome`` for the ILC
@@ -251,9 +263,7 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
     Qd, Vd, Ad = exp.primitives.desired(theta0)
     R, Rd = exp.law.references(Qd, Vd)
     u0 = feedforward(exp.dynamics, Qd, Vd, Ad)
-    mask = exp.learner.error_mask > 0
-    inputs = np.flatnonzero(mask & (exp.loop.actuated > 0))
-    outputs = np.flatnonzero(mask)
+    inputs, outputs = channels(exp)
     state = {"dU": np.zeros((n, len(inputs))), "cycle": 0}
     dloop = disturbed_loop(exp)  # None without a disturbances block
     settings = cfg.ilc
@@ -308,5 +318,5 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
     return run
 
 
-__all__ = ["ILC_UPDATES", "NormOptimalILC", "OWN_RUNNER", "PTypeILC", "cycle_runner",
+__all__ = ["ILC_UPDATES", "NormOptimalILC", "OWN_RUNNER", "PTypeILC", "channels", "cycle_runner",
            "lifted_jacobian", "problems", "q_filter"]

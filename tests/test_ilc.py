@@ -186,3 +186,34 @@ def test_resume_continues_the_learned_sequence_and_the_noise_bit_identically(tmp
         [r["fb_abs_mean_error"] for r in whole.rows]
     for key, value in whole.params.items():
         np.testing.assert_array_equal(resumed.params[key], value)
+
+
+def test_lifted_jacobian_of_a_frame_angle_law_matches_finite_differences():
+    """The UR5 holds its tool axis level (a frame angle, whose torque acts on every joint that
+    moves the frame): the lifted model's feedback derivatives come from differences of the law."""
+    exp = load_experiment(CONFIGS / "ur5_wrist_level.yaml", ["learning.update=ilc_norm_optimal"])
+    from feltool.ilc import channels
+
+    inputs, outputs = channels(exp)
+    assert len(inputs) == 3  # the frame torque reaches shoulder, elbow and wrist
+    theta = exp.initial_parameters(0)
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    n = 30  # the first 30 samples are enough to check the chain
+    Qd, Vd, Ad = Qd[:n], Vd[:n], Ad[:n]
+    R, Rd = exp.law.references(Qd, Vd)
+    u_ff = exp.dynamics.inverse_batch(Qd, Vd, Ad)
+    q0, v0 = exp.law.consistent_state(Qd[0], Vd[0])
+    log = exp.loop.run_cycle(q0, v0, R, Rd, u_ff)
+    G = lifted_jacobian(exp.robot.model, exp.law, exp.loop.actuated, exp.loop.dt, 1,
+                        "semi_implicit_euler", log.q, log.v, R, Rd, u_ff + log.u_fb, inputs,
+                        outputs, exp.loop.error_rows)
+    assert G.shape == (3 * n, 3 * n)
+    eps = 1e-5
+    for j, c in ((0, 2), (7, 0), (20, 1)):
+        outs = []
+        for sign in (1.0, -1.0):
+            u = u_ff.copy()
+            u[j, inputs[c]] += sign * eps
+            outs.append(exp.loop.run_cycle(q0, v0, R, Rd, u).u_err[:, outputs].reshape(-1))
+        fd = (outs[0] - outs[1]) / (2 * eps)
+        np.testing.assert_allclose(G[:, 3 * j + c], fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
