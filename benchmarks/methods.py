@@ -4,8 +4,8 @@
         [--quick] [--out benchmarks/results]
 
 For every learner (gradient and gauss_newton FEL, P-type and norm-optimal ILC, feedback only)
-on the standard arm, the human arm and the double-pendulum balance, over ``--seeds`` seeds
-(0..n-1) at each config's cycles:
+on the standard arm, the human arm, the double-pendulum balance and the UR5 keeping its tool
+level, over ``--seeds`` seeds (0..n-1) at each config's cycles:
 
 * cycles to 5 %: the converged_cycle of summary.json (median and worst over seeds; "-" when a
   seed never stays below 5 % of its first-cycle feedback),
@@ -20,8 +20,10 @@ Then the robustness scores on the standard arm (:mod:`feltool.robustness`: every
 scenario, ``--robust-seeds`` seeds), and the transfer test of the thesis's claim that ILC needs
 the same trajectory every cycle: after learning at T = 1 s, the period changes and the
 learned result is replayed without further learning -- FEL's RMP re-timed, ILC's torque
-sequence resampled by phase. Writes ``methods.json``, ``methods.md`` and figures into
-``--out`` and ``docs/figures/methods_*.png``.
+sequence resampled by phase; and the cost of one learning update alone, best of 5, against the
+simulation of the cycle (``--cost-only`` runs just that). Writes ``methods.json``,
+``methods.md``, ``update_cost.{json,md}`` and figures into ``--out`` and
+``docs/figures/methods_*.png``.
 """
 
 from __future__ import annotations
@@ -48,10 +50,11 @@ ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
 FIGURES = ROOT / "docs" / "figures"
 ARMS = {"standard arm": "two_link_standard", "human arm": "two_link_human_arm",
-        "double pendulum": "double_pendulum_balance"}
+        "double pendulum": "double_pendulum_balance", "UR5": "ur5_wrist_level"}
 # Each learner's settings: the configs' FEL rates; gauss_newton takes half the
 # Levenberg-Marquardt step (the configs' gradient rates are not fractions); the ILC Q filter
-# below the human arm's 25 Hz Nyquist frequency.
+# below the human arm's 25 Hz Nyquist frequency, and a smaller P-type gain on the UR5 (whose
+# frame-angle torque reaches three joints; at L = 1 its feedback falls, then grows again).
 SETTINGS = {
     "gradient": [],
     "gauss_newton": ["learning.rates.weights=0.5"],
@@ -59,7 +62,8 @@ SETTINGS = {
     "ilc_norm_optimal": [],
     "feedback_only": [],
 }
-PER_CONFIG = {("two_link_human_arm", "ilc_p"): ["ilc.cutoff_hz=10"]}
+PER_CONFIG = {("two_link_human_arm", "ilc_p"): ["ilc.cutoff_hz=10"],
+              ("ur5_wrist_level", "ilc_p"): ["ilc.gain=0.3"]}
 
 
 def overrides(config: str, learner: str) -> list[str]:
@@ -212,6 +216,76 @@ def transfer_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def update_cost(repeats: int = 5) -> list[dict]:
+    """Wall time of one learning update alone (best of ``repeats``), after one simulated
+    cycle from seed 0's start, against the cycle's simulation [ms]."""
+
+    def best(fn) -> float:
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return 1e3 * min(times)
+
+    return [_cost_of(arm, config, best) for arm, config in ARMS.items()]
+
+
+def _cost_of(arm: str, config: str, best) -> dict:
+    from feltool.ilc import NormOptimalILC, PTypeILC, lifted_jacobian
+
+    exp = load_experiment(CONFIGS / f"{config}.yaml")
+    gn = load_experiment(CONFIGS / f"{config}.yaml", ["learning.update=gauss_newton"])
+    theta = exp.initial_parameters(0)
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    u_ff = exp.dynamics.inverse_batch(Qd, Vd, Ad)
+    q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+    inputs, outputs = channels(exp)
+    ilc = exp.config.ilc
+    p_type = PTypeILC(ilc.gain, ilc.lead_steps, ilc.cutoff_hz, ilc.order, exp.config.sim.rate_hz)
+    norm = NormOptimalILC(ilc.weight_error, ilc.weight_change)
+    dU = np.zeros((len(Qd), len(inputs)))
+
+    def fel(e=exp):
+        _, *d = e.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+        e.learner.step(theta, e.learner.jacobian(e.dynamics, theta, Qd, Vd, Ad, d), log.u_err)
+
+    def lifted():
+        G = lifted_jacobian(exp.robot.model, exp.law, exp.loop.actuated, exp.loop.dt,
+                            exp.loop.substeps, exp.loop.integrator, log.q, log.v, R, Rd,
+                            exp.loop.actuated * (u_ff + log.u_fb), inputs, outputs,
+                            exp.loop.error_rows)
+        norm.update(dU, log.u_err[:, outputs], G)
+
+    return {"robot": arm, "samples": len(Qd),
+            "simulation_ms": best(lambda: exp.loop.run_cycle(q, v, R, Rd, u_ff)),
+            "gradient_ms": best(fel), "gauss_newton_ms": best(lambda: fel(gn)),
+            "ilc_p_ms": best(lambda: p_type.update(dU, log.u_err[:, inputs])),
+            "ilc_norm_optimal_ms": best(lifted)}
+
+
+def cost_table(rows: list[dict]) -> str:
+    lines = ["| robot | samples per cycle | simulating the cycle | gradient | gauss_newton | "
+             "ilc_p | ilc_norm_optimal |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['robot']} | {r['samples']} | {r['simulation_ms']:.2f} | "
+                     f"{r['gradient_ms']:.2f} | {r['gauss_newton_ms']:.2f} | "
+                     f"{r['ilc_p_ms']:.2f} | {r['ilc_norm_optimal_ms']:.2f} |")
+    return "\n".join(lines)
+
+
+def write_cost(out: Path) -> str:
+    rows = update_cost()
+    md = "\n".join(["## One learning update alone [ms] (best of 5, one core)", "",
+                     cost_table(rows), ""])
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "update_cost.json").write_text(json.dumps(rows, indent=1))
+    (out / "update_cost.md").write_text(md)
+    return md
+
+
 def figures(curves: dict, rob: dict | None) -> list[Path]:
     import matplotlib
 
@@ -269,8 +343,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--robust-seeds", type=int, default=3, help="seeds per robustness point")
     ap.add_argument("--quick", action="store_true", help="2 seeds, no robustness (a smoke run)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    ap.add_argument("--cost-only", action="store_true",
+                    help="only the cost of one update (update_cost.md/json)")
     args = ap.parse_args(argv)
     log = sys.stderr
+    if args.cost_only:
+        print(write_cost(args.out))
+        return 0
     t0 = time.perf_counter()
     seeds = list(range(2 if args.quick else args.seeds))
     results, curves = table(seeds, log)
@@ -306,6 +385,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in figures(curves, rob):
         print(f"wrote {path}", file=log)
     print("\n".join(md))
+    print(write_cost(args.out))
     print(f"\n({time.perf_counter() - t0:.0f} s)")
     return 0
 
