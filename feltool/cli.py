@@ -540,6 +540,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", type=Path, help="a complete run directory")
     p.add_argument("--seed", type=int, help="seed for the per-seed figures")
     p.set_defaults(func=cmd_plot)
+
+    from feltool.robustness import add_command as add_robustness
+
+    add_robustness(sub, _sub)
     return parser
 
 

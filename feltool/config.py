@@ -459,8 +459,12 @@ class LearningConfig(Strict):
     error: Literal["stabilizing", "all_feedback"] | list[str] = Field(
         "stabilizing", description="Error signal e: the stabilizing feedback (fully actuated "
         "robots), all feedback (underactuated robots), or a list of joints whose feedback counts.")
-    update: Literal["gradient", "gauss_newton"] = Field("gradient", description="gradient: eq. "
-        "3.6; gauss_newton: a Levenberg-Marquardt step on the weights (goal stays on gradient).")
+    update: Literal["gradient", "gauss_newton", "ilc_p", "ilc_norm_optimal", "feedback_only"] = \
+        Field("gradient", description="gradient: eq. 3.6; gauss_newton: a Levenberg-Marquardt "
+              "step on the weights (goal stays on gradient); ilc_p: P-type ILC of a per-sample "
+              "feedforward torque with a zero-phase Q filter; ilc_norm_optimal: norm-optimal ILC "
+              "on the lifted cycle model of the known model; feedback_only: no learning (the "
+              "baseline). The ILC settings are in `ilc` (docs/comparison.md).")
     step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
         "cycle (the RMP is then reset onto its new limit cycle) or after every control step.")
     rates: Rates = Field(default_factory=Rates, description="Learning rates.")
@@ -478,6 +482,61 @@ class LearningConfig(Strict):
         "velocity jump makes a feedback spike that no smooth RMP can remove) [s]; 0 = off.")
     model: ModelLearningConfig | None = Field(None, description="Also learn an inverse-model "
         "correction by classic FEL (docs/model_learning.md); default off.")
+
+
+class ILCConfig(Strict):
+    """Iterative learning control (learning.update ilc_p / ilc_norm_optimal): the learned
+    feedforward is a torque per sample of the cycle, added to the known model's torque along the
+    initial RMP (feltool.ilc)."""
+
+    gain: NonNegFloat = Field(1.0, description="ilc_p: learning gain L of "
+                              "u_{h+1} = Q(u_h + L e_h) [-] (error and input are torques).")
+    lead_steps: int = Field(0, ge=0, le=100_000, description="ilc_p: phase lead of the error "
+                            "in samples (u_h^k is corrected by e_h^{k+lead}) [-].")
+    cutoff_hz: PositiveFloat | None = Field(20.0, description="ilc_p: cutoff of the zero-phase "
+        "Butterworth Q filter in [Hz] (run forwards and backwards over the periodic cycle); "
+        "null: no filter.")
+    order: int = Field(2, ge=1, le=8, description="ilc_p: order of the Q filter's Butterworth "
+                       "low pass [-].")
+    weight_error: PositiveFloat = Field(1.0, description="ilc_norm_optimal: weight w_e of the "
+                                        "error norm ||e||^2 [1/(N m)^2].")
+    weight_change: PositiveFloat = Field(0.01, description="ilc_norm_optimal: weight w_u of "
+                                         "the input-change norm ||u_{h+1} - u_h||^2 "
+                                         "[1/(N m)^2].")
+
+
+class MeasurementNoise(Strict):
+    """Gaussian noise on what the robot measures (the feedback and the learner see it; the
+    simulated plant moves on its true state)."""
+
+    q: NonNegFloat = Field(0.0, description="Standard deviation on the joint angles in [rad].")
+    v: NonNegFloat = Field(0.0, description="Standard deviation on the joint velocities in "
+                           "[rad/s].")
+
+
+class ModelErrorConfig(Strict):
+    """The plant's bodies scaled against the known model (which stays unchanged)."""
+
+    mass_scale: PositiveFloat = Field(1.0, description="Every body's mass and rotational "
+                                      "inertia times this [-].")
+    length_scale: PositiveFloat = Field(1.0, description="Every joint placement and centre of "
+        "mass times this, rotational inertias times its square (a uniformly stretched robot) "
+        "[-].")
+
+
+class DisturbanceConfig(Strict):
+    """Disturbances of the plant only (feltool.disturbances): the known model and the learner
+    never see their source, only the noisy measurements they produce. Every draw comes from a
+    numpy Generator seeded by (seed, cycle)."""
+
+    measurement_noise: MeasurementNoise = Field(default_factory=MeasurementNoise,
+                                                description="Noise on the measured q, qdot.")
+    torque_noise: NonNegFloat = Field(0.0, description="Standard deviation of Gaussian noise "
+                                      "added to every applied joint torque in [N m].")
+    input_delay_steps: int = Field(0, ge=0, le=10_000, description="The plant receives each "
+                                   "commanded torque this many control steps late [-].")
+    model_error: ModelErrorConfig = Field(default_factory=ModelErrorConfig, description="The "
+                                          "plant's physics scaled against the known model.")
 
 
 class Guard(Strict):
@@ -749,6 +808,10 @@ class ExperimentConfig(Strict):
                                       "at given cycles (adaptation experiments).")
     plant: PlantConfig | None = Field(None, description="The simulated robot, when it differs "
                                       "from the known model; default plant = model.")
+    ilc: ILCConfig = Field(default_factory=ILCConfig, description="Iterative learning "
+                           "control settings (learning.update ilc_p, ilc_norm_optimal).")
+    disturbances: DisturbanceConfig | None = Field(None, description="Noise, delay and model "
+        "error applied to the plant only (robustness studies); default none.")
     seeds: Annotated[int, Field(ge=1, le=MAX_SEEDS)] | Annotated[
         list[Annotated[int, Field(ge=0, le=MAX_SEED)]], Field(min_length=1, max_length=MAX_SEEDS)
     ] = Field(20, description=f"Number of seeds (0..n-1, at most {MAX_SEEDS}) or an explicit "

@@ -16,11 +16,13 @@ import pinocchio as pin
 
 from feltool.config import ExperimentConfig, JointConfig, apply_overrides, parse_config, read_yaml
 from feltool.control import FeedbackLaw, FrameAngle
+from feltool.disturbances import problems as disturbance_problems
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.events import check_events
 from feltool.fel import FeedbackErrorLearner
 from feltool.hybrid import Allocation, HybridLoop, Walker
+from feltool.ilc import problems as ilc_problems
 from feltool.memory import check_memory
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.plant import make_plant, plant_problems, plant_robot
@@ -356,6 +358,9 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     if L.step == "per_step" and L.sensitivity != "exact":
         raise ConfigError([("learning.sensitivity", "per_step learning supports only 'exact'")],
                           str(source) if source else None)
+    unsupported = ilc_problems(cfg) + disturbance_problems(cfg)
+    if unsupported:
+        raise ConfigError(unsupported, str(source) if source else None)
     learner = FeedbackErrorLearner(primitives, np.array(learned, dtype=int),
                                    np.array(is_goal, dtype=bool), error_mask,
                                    np.array(rates), L.update, L.damping, L.sensitivity,

@@ -20,6 +20,8 @@ from feltool.control import wrap
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.events import changed_model, plant_for_cycle
 from feltool.fel import feedforward
+from feltool.ilc import OWN_RUNNER
+from feltool.ilc import cycle_runner as ilc_cycle_runner
 from feltool.simulate import ClosedLoop, CycleLog
 
 if TYPE_CHECKING:
@@ -103,7 +105,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         q, v = exp.hybrid.initial_state(Qd, Vd)
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
     reason, start, wall_before = None, 1, 0.0
-    run_cycle = _cycle_runner(exp, theta)
+    run_cycle = _cycle_runner(exp, theta, seed)
     model = exp.model_learner
     theta_m = model.initial_parameters() if model else None
     model_history = [theta_m]
@@ -116,6 +118,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         traces = {k[len("trace_"):]: val for k, val in saved.items() if k.startswith("trace_")}
         if "rmp_x" in saved:
             _restore_rmp_states(run_cycle, saved)
+        if hasattr(run_cycle, "restore_state"):  # ILC sequence, disturbance state
+            run_cycle.restore_state(saved)
         if model is not None:
             theta_m, model_history = saved["model_theta"], list(saved["model_history"])
     t0 = time.perf_counter()
@@ -194,6 +198,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
 
         summary["poincare"] = poincare(exp, theta, q, v, plant)
     params = exp.split_parameters(theta)
+    if hasattr(run_cycle, "extra_params"):  # an ILC's learned torque sequence
+        params.update(run_cycle.extra_params())
     hist = np.array(history)
     for name in exp.learned_joints:
         sl = exp.primitives.slices[exp.joints.index(name)]
@@ -210,7 +216,8 @@ def _nonzero(names: list[str], counts: np.ndarray) -> dict[str, int]:
     return {name: int(c) for name, c in zip(names, counts) if c}
 
 
-def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOutcome]:
+def _cycle_runner(exp: Experiment, theta0: np.ndarray,
+                  seed: int = 0) -> Callable[..., CycleOutcome]:
     """The function ``(theta, q, v, plant) -> CycleOutcome`` that runs one cycle for this
     experiment's backend and update mode; ``plant`` is the simulated world (the known model, or
     the one an event changed).
@@ -234,6 +241,8 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray) -> Callable[..., CycleOut
                                           exp.loop.error_rows, exp.loop.limits)
         return loops[id(plant)]
 
+    if exp.config.learning.update in OWN_RUNNER or exp.config.disturbances is not None:
+        return ilc_cycle_runner(exp, theta0, seed, loop_for)  # ILC, baseline, disturbances
     if exp.model_learner is not None:
         return lambda theta, q, v, plant, theta_m: _model_cycle(exp, theta, q, v, theta_m,
                                                                 loop_for(plant))
@@ -269,6 +278,8 @@ def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history
     if model_state is not None:
         arrays["model_theta"], arrays["model_history"] = model_state[0], np.array(model_state[1])
     arrays.update({f"trace_{k}": val for k, val in traces.items()})
+    if hasattr(run_cycle, "extra_state"):
+        arrays.update(run_cycle.extra_state())
     states = getattr(run_cycle, "rmp_states", None)
     if states is not None:
         keys = sorted(states)

@@ -1,0 +1,394 @@
+"""FEL against the other learners, side by side: the tables and figures of docs/comparison.md.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/methods.py [--seeds 10] [--robust-seeds 3]
+        [--quick] [--out benchmarks/results]
+
+For every learner (gradient and gauss_newton FEL, P-type and norm-optimal ILC, feedback only)
+on the standard arm, the human arm, the double-pendulum balance and the UR5 keeping its tool
+level, over ``--seeds`` seeds (0..n-1) at each config's cycles:
+
+* cycles to 5 %: the converged_cycle of summary.json (median and worst over seeds; "-" when a
+  seed never stays below 5 % of its first-cycle feedback),
+* final feedback: the error signal's mean |u_fb| in the last cycle [N m] (mean over seeds),
+* final tracking error: RMS over the last cycle of reference minus controlled quantity (the
+  tracked joint against its RMP, the stabilized link against its target), over the controlled
+  quantities [rad] -- the task error, the same for every learner,
+* computation per cycle: wall time per learning cycle [ms] (one core),
+* learned numbers: how many values the learner stores.
+
+Then the robustness scores on the standard arm (:mod:`feltool.robustness`: every learner x
+scenario, ``--robust-seeds`` seeds), and the transfer test of the thesis's claim that ILC needs
+the same trajectory every cycle: after learning at T = 1 s, the period changes and the
+learned result is replayed without further learning -- FEL's RMP re-timed, ILC's torque
+sequence resampled by phase; and the cost of one learning update alone, best of 5, against the
+simulation of the cycle (``--cost-only`` runs just that). Writes ``methods.json``,
+``methods.md``, ``update_cost.{json,md}`` and figures into ``--out`` and
+``docs/figures/methods_*.png``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one core per learner, as measured
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from feltool.config import read_yaml  # noqa: E402
+from feltool.control import wrap  # noqa: E402
+from feltool.experiment import load_experiment, run_seed  # noqa: E402
+from feltool.ilc import channels, cycle_runner  # noqa: E402
+from feltool.robustness import LEARNERS, SCENARIOS, format_scores, robustness  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIGS = ROOT / "configs"
+FIGURES = ROOT / "docs" / "figures"
+ARMS = {"standard arm": "two_link_standard", "human arm": "two_link_human_arm",
+        "double pendulum": "double_pendulum_balance", "UR5": "ur5_wrist_level"}
+# Each learner's settings: the configs' FEL rates; gauss_newton takes half the
+# Levenberg-Marquardt step (the configs' gradient rates are not fractions); the ILC Q filter
+# below the human arm's 25 Hz Nyquist frequency, and a smaller P-type gain on the UR5 (whose
+# frame-angle torque reaches three joints; at L = 1 its feedback falls, then grows again).
+SETTINGS = {
+    "gradient": [],
+    "gauss_newton": ["learning.rates.weights=0.5"],
+    "ilc_p": [],
+    "ilc_norm_optimal": [],
+    "feedback_only": [],
+}
+PER_CONFIG = {("two_link_human_arm", "ilc_p"): ["ilc.cutoff_hz=10"],
+              ("ur5_wrist_level", "ilc_p"): ["ilc.gain=0.3"]}
+
+
+def overrides(config: str, learner: str) -> list[str]:
+    return [f"learning.update={learner}", *SETTINGS[learner], *PER_CONFIG.get((config, learner), [])]
+
+
+def task_error(exp, traces) -> tuple[float, float]:
+    """RMS of reference minus controlled quantity over the last cycle [rad]: over the
+    stabilized quantities, and over the tracked ones."""
+    Qd = traces["last_q_forward"]
+    R, _ = exp.law.references(Qd, Qd)
+    err = wrap(R - exp.law.quantity(traces["last_q_system"]))
+    return (float(np.sqrt(np.mean(err[:, exp.law.stabilizing] ** 2))),
+            float(np.sqrt(np.mean(err[:, exp.law.tracking] ** 2))))
+
+
+def learned_numbers(exp, learner: str) -> int:
+    if learner == "feedback_only":
+        return 0
+    if learner.startswith("ilc"):
+        return len(channels(exp)[0]) * exp.primitives.n_steps
+    return exp.learner.n_learned
+
+
+def table(seeds: list[int], log, arms: dict | None = None, extra: list[str] | None = None
+          ) -> tuple[dict, dict]:
+    results, curves = {}, {}
+    for arm, config in (arms or ARMS).items():
+        for learner in LEARNERS:
+            exp = load_experiment(CONFIGS / f"{config}.yaml",
+                                  overrides(config, learner) + list(extra or []))
+            per_seed, fb_curves = [], []
+            for seed in seeds:
+                res = run_seed(exp, seed)
+                s = res.summary
+                per_seed.append({"seed": seed, "converged_cycle": s["converged_cycle"],
+                                 "fb_initial": s["fb_initial"], "fb_final": s["fb_final"],
+                                 "fb_ratio": s["fb_ratio"], "diverged": s["diverged"],
+                                 "task_error_rad": task_error(exp, res.traces)
+                                 if "last_q_system" in res.traces and not s["diverged"]
+                                 else None,
+                                 "ms_per_cycle": 1e3 * s["wall_s"] / max(1, s["cycles"])})
+                fb_curves.append([r["fb_abs_mean_error"] for r in res.rows])
+            results[(arm, learner)] = {"config": config, "cycles": exp.config.sim.cycles,
+                                       "learned_numbers": learned_numbers(exp, learner),
+                                       "seeds": per_seed}
+            curves[(arm, learner)] = fb_curves
+            conv = [p["converged_cycle"] for p in per_seed]
+            print(f"methods: {arm} {learner}: converged {conv}, fb_final "
+                  f"{[round(p['fb_final'], 4) for p in per_seed]}", file=log, flush=True)
+    return results, curves
+
+
+def summarize(results: dict) -> str:
+    lines = ["| robot | learner | cycles to 5 % (median / worst) | final feedback [N m] | "
+             "final / first | final error, stabilized / tracked [rad] | computation per "
+             "cycle [ms] | learned numbers |", "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for (arm, learner), r in results.items():
+        ps = r["seeds"]
+        conv = [p["converged_cycle"] for p in ps]
+        div = sum(p["diverged"] for p in ps)
+        if all(c is not None for c in conv):
+            c = f"{int(np.median(conv))} / {max(conv)}"
+        else:
+            got = [c for c in conv if c is not None]
+            c = (f"{int(np.median(got))} / - ({len(conv) - len(got)} never)" if got
+                 else "never")
+        ok = [p for p in ps if not p["diverged"]] or ps
+        fb = np.mean([p["fb_final"] or np.nan for p in ok])
+        ratio = np.mean([p["fb_ratio"] or np.nan for p in ok])
+        te = np.array([p["task_error_rad"] for p in ps if p["task_error_rad"] is not None])
+        te = f"{te[:, 0].mean():.3g} / {te[:, 1].mean():.3g}" if len(te) else "-"
+        ms = np.median([p["ms_per_cycle"] for p in ps])
+        note = f" ({div} diverged)" if div else ""
+        if div == len(ps):
+            fb_txt, ratio_txt = "-", "-"
+        else:
+            fb_txt, ratio_txt = f"{fb:.3g}", f"{ratio:.2g}"
+        lines.append(f"| {arm} | {learner}{note} | {c} | {fb_txt} | {ratio_txt} | "
+                     f"{te} | {ms:.2f} | {r['learned_numbers']} |")
+    return "\n".join(lines)
+
+
+def transfer(log, cycles: int = 150, seeds=(0, 1, 2), scales=(0.8, 1.25)) -> list[dict]:
+    """Learn at the nominal period, then replay the learned result at another period without
+    learning; feedback of the replayed cycle over the first cycle of learning from scratch."""
+    rows = []
+    base = CONFIGS / "two_link_standard.yaml"
+    T, rate = float(read_yaml(base)["period_s"]), 100.0
+    for learner in ("gradient", "ilc_p", "ilc_norm_optimal"):
+        exp = load_experiment(base, overrides("two_link_standard", learner))
+        for seed in seeds:
+            theta0 = exp.initial_parameters(seed)
+            run = cycle_runner(exp, theta0, seed, lambda p, exp=exp: exp.loop) \
+                if learner.startswith("ilc") else None
+            res = run_seed(exp, seed, cycles=cycles) if run is None else None
+            theta = theta0
+            if run is None:
+                theta = theta0.copy()
+                sl = exp.primitives.slices[exp.joints.index("elbow")]
+                theta[sl.start:sl.stop - 1] = res.params["elbow.weights"]
+                theta[sl.stop - 1] = res.params["elbow.goal"]
+            else:
+                Qd, Vd, _ = exp.primitives.desired(theta0)
+                q, v = exp.law.consistent_state(Qd[0], Vd[0])
+                for _ in range(cycles):
+                    out = run(theta0, q, v, exp.dynamics)
+                    q, v = out.q_end, out.v_end
+                dU = run.state["dU"]
+            for scale in scales:
+                period = round(scale * T * rate) / rate
+                new = load_experiment(base, ["learning.update=ilc_p", "ilc.gain=0",
+                                             "ilc.cutoff_hz=null", f"period_s={period}"])
+                replay = cycle_runner(new, theta, seed, lambda p, new=new: new.loop)
+                if run is not None:  # the torque sequence, resampled by phase
+                    n_old, n_new = len(dU), new.primitives.n_steps
+                    phase_old = np.arange(n_old) / n_old
+                    phase_new = np.arange(n_new) / n_new
+                    replay.state["dU"] = np.stack(
+                        [np.interp(phase_new, phase_old, dU[:, c], period=1.0)
+                         for c in range(dU.shape[1])], axis=1)
+                Qd, Vd, _ = new.primitives.desired(theta)
+                q, v = new.law.consistent_state(Qd[0], Vd[0])
+                fbs = []
+                for _ in range(3):  # the third replayed cycle: past the start's transient
+                    out = replay(theta, q, v, new.dynamics)
+                    q, v = out.q_end, out.v_end
+                    fbs.append(out.fb_error)
+                scratch = load_experiment(base, [f"period_s={period}",
+                                                 "learning.update=feedback_only"])
+                first = run_seed(scratch, seed, cycles=1).rows[0]["fb_abs_mean_error"]
+                rows.append({"learner": learner, "seed": seed, "period_s": period,
+                             "fb_replayed": fbs[-1], "fb_scratch_first": first,
+                             "ratio": fbs[-1] / first})
+                print(f"transfer: {learner} seed {seed} T={period}: {fbs[-1]:.3g} N m "
+                      f"({fbs[-1] / first:.3f} of a fresh start)", file=log, flush=True)
+    return rows
+
+
+def transfer_table(rows: list[dict]) -> str:
+    periods = sorted({r["period_s"] for r in rows})
+    lines = ["| learner | " + " | ".join(f"T = {p:g} s" for p in periods) + " |",
+             "|---|" + "---:|" * len(periods)]
+    for learner in dict.fromkeys(r["learner"] for r in rows):
+        cells = []
+        for p in periods:
+            rs = [r["ratio"] for r in rows if r["learner"] == learner and r["period_s"] == p]
+            cells.append(f"{np.mean(rs):.3f} ({min(rs):.3f}-{max(rs):.3f})")
+        lines.append(f"| {learner} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def update_cost(repeats: int = 5) -> list[dict]:
+    """Wall time of one learning update alone (best of ``repeats``), after one simulated
+    cycle from seed 0's start, against the cycle's simulation [ms]."""
+
+    def best(fn) -> float:
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return 1e3 * min(times)
+
+    return [_cost_of(arm, config, best) for arm, config in ARMS.items()]
+
+
+def _cost_of(arm: str, config: str, best) -> dict:
+    from feltool.ilc import NormOptimalILC, PTypeILC, lifted_jacobian
+
+    exp = load_experiment(CONFIGS / f"{config}.yaml")
+    gn = load_experiment(CONFIGS / f"{config}.yaml", ["learning.update=gauss_newton"])
+    theta = exp.initial_parameters(0)
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    u_ff = exp.dynamics.inverse_batch(Qd, Vd, Ad)
+    q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+    inputs, outputs = channels(exp)
+    ilc = exp.config.ilc
+    p_type = PTypeILC(ilc.gain, ilc.lead_steps, ilc.cutoff_hz, ilc.order, exp.config.sim.rate_hz)
+    norm = NormOptimalILC(ilc.weight_error, ilc.weight_change)
+    dU = np.zeros((len(Qd), len(inputs)))
+
+    def fel(e=exp):
+        _, *d = e.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
+        e.learner.step(theta, e.learner.jacobian(e.dynamics, theta, Qd, Vd, Ad, d), log.u_err)
+
+    def lifted():
+        G = lifted_jacobian(exp.robot.model, exp.law, exp.loop.actuated, exp.loop.dt,
+                            exp.loop.substeps, exp.loop.integrator, log.q, log.v, R, Rd,
+                            exp.loop.actuated * (u_ff + log.u_fb), inputs, outputs,
+                            exp.loop.error_rows)
+        norm.update(dU, log.u_err[:, outputs], G)
+
+    return {"robot": arm, "samples": len(Qd),
+            "simulation_ms": best(lambda: exp.loop.run_cycle(q, v, R, Rd, u_ff)),
+            "gradient_ms": best(fel), "gauss_newton_ms": best(lambda: fel(gn)),
+            "ilc_p_ms": best(lambda: p_type.update(dU, log.u_err[:, inputs])),
+            "ilc_norm_optimal_ms": best(lifted)}
+
+
+def cost_table(rows: list[dict]) -> str:
+    lines = ["| robot | samples per cycle | simulating the cycle | gradient | gauss_newton | "
+             "ilc_p | ilc_norm_optimal |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['robot']} | {r['samples']} | {r['simulation_ms']:.2f} | "
+                     f"{r['gradient_ms']:.2f} | {r['gauss_newton_ms']:.2f} | "
+                     f"{r['ilc_p_ms']:.2f} | {r['ilc_norm_optimal_ms']:.2f} |")
+    return "\n".join(lines)
+
+
+def write_cost(out: Path) -> str:
+    rows = update_cost()
+    md = "\n".join(["## One learning update alone [ms] (best of 5, one core)", "",
+                     cost_table(rows), ""])
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "update_cost.json").write_text(json.dumps(rows, indent=1))
+    (out / "update_cost.md").write_text(md)
+    return md
+
+
+def figures(curves: dict, rob: dict | None) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    written = []
+    fig, axes = plt.subplots(1, len(ARMS), figsize=(4.2 * len(ARMS), 3.4))
+    for ax, arm in zip(np.atleast_1d(axes), ARMS):
+        for learner in LEARNERS:
+            runs = curves.get((arm, learner))
+            if not runs:
+                continue
+            n = min(len(r) for r in runs)
+            F = np.array([r[:n] for r in runs])
+            x = np.arange(1, n + 1)
+            line, = ax.semilogy(x, F.mean(axis=0), label=learner)
+            ax.fill_between(x, F.min(axis=0), F.max(axis=0), alpha=0.15, color=line.get_color())
+        ax.set_title(arm)
+        ax.set_xlabel("cycle")
+        ax.grid(alpha=0.3)
+    np.atleast_1d(axes)[0].set_ylabel("mean |error feedback| [N m]")
+    np.atleast_1d(axes)[-1].legend(fontsize=8)
+    fig.tight_layout()
+    path = FIGURES / "methods_feedback_convergence.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    written.append(path)
+    if rob is not None:
+        names = list(rob["scenarios"])
+        learners = list(rob["scores"])
+        S = np.array([[rob["scores"][lr][n] for n in names] for lr in learners])
+        fig, ax = plt.subplots(figsize=(7.5, 3.0))
+        im = ax.imshow(S, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+        ax.set_xticks(range(len(names)), names, rotation=30)
+        ax.set_yticks(range(len(learners)), learners)
+        for i in range(len(learners)):
+            for j in range(len(names)):
+                ax.text(j, i, f"{S[i, j]:.2f}", ha="center", va="center",
+                        color="white" if S[i, j] < 0.6 else "black", fontsize=8)
+        fig.colorbar(im, ax=ax, label="score")
+        ax.set_title("robustness, standard arm")
+        fig.tight_layout()
+        path = FIGURES / "methods_robustness.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=10, help="seeds 0..n-1 for the table")
+    ap.add_argument("--robust-seeds", type=int, default=3, help="seeds per robustness point")
+    ap.add_argument("--quick", action="store_true", help="2 seeds, no robustness (a smoke run)")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    ap.add_argument("--cost-only", action="store_true",
+                    help="only the cost of one update (update_cost.md/json)")
+    args = ap.parse_args(argv)
+    log = sys.stderr
+    if args.cost_only:
+        print(write_cost(args.out))
+        return 0
+    t0 = time.perf_counter()
+    seeds = list(range(2 if args.quick else args.seeds))
+    results, curves = table(seeds, log)
+    md = ["## Learners side by side", "", summarize(results), ""]
+    alle, _ = table(seeds, log, {"standard arm": "two_link_standard"},
+                    ["learning.error=all_feedback"])
+    md += ["## Standard arm, every joint's feedback as the error signal", "", summarize(alle),
+           ""]
+    rob = None
+    if not args.quick:
+        config = CONFIGS / "two_link_standard.yaml"
+        raw = read_yaml(config)
+        rob = robustness(raw, config, list(LEARNERS), list(SCENARIOS.values()),
+                         list(range(args.robust_seeds)), 150,
+                         {lr: overrides("two_link_standard", lr)[1:] for lr in LEARNERS}, log)
+        md += ["## Robustness scores (standard arm)", "", format_scores(rob), ""]
+        md += ["| scenario | values | unit | what |", "|---|---|---|---|"]
+        md += [f"| {s.name} | {', '.join(f'{v:g}' for v in s.values)} | {s.unit} | "
+               f"{s.description} |" for s in SCENARIOS.values()]
+        md.append("")
+    rows = transfer(log, seeds=seeds[:3])
+    md += ["## Replaying the learned result at another period (standard arm)", "",
+           "Feedback of the third replayed cycle, no learning, over the first cycle of a fresh "
+           "start at that period (mean, min-max over seeds):", "", transfer_table(rows), ""]
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "methods.json").write_text(json.dumps(
+        {"table": [{"robot": arm, "learner": lr, **r} for (arm, lr), r in results.items()],
+         "table_all_feedback": [{"robot": arm, "learner": lr, **r}
+                                for (arm, lr), r in alle.items()],
+         "robustness": rob, "transfer": rows, "seeds": seeds,
+         "wall_s": round(time.perf_counter() - t0, 1)}, indent=1))
+    (args.out / "methods.md").write_text("\n".join(md))
+    for path in figures(curves, rob):
+        print(f"wrote {path}", file=log)
+    print("\n".join(md))
+    print(write_cost(args.out))
+    print(f"\n({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,161 @@
+r"""Disturbances of the plant only: measurement noise, torque noise, input delay, model error.
+
+The config's ``disturbances:`` block turns the closed loop into
+
+.. math::
+
+    \tilde x_k = x_k + n_k,\quad n_k \sim \mathcal N(0, \operatorname{diag}(\sigma_q^2,
+    \sigma_{\dot q}^2)),\qquad
+    u_{fb}^k = u_{fb}(\tilde x_k),\qquad
+    \tau_k^{cmd} = S(u_{ff}^k + u_{fb}^k),\qquad
+    \tau_k = \tau_{k-d}^{cmd} + S w_k,\ w_k \sim \mathcal N(0, \sigma_\tau^2 I),
+
+with the plant :math:`x_{k+1} = F_{plant}(x_k, \tau_k)` whose bodies may be scaled against the
+known model (masses and inertias by :math:`s_m`, lengths by :math:`s_l`, rotational inertias by
+:math:`s_m s_l^2`). The feedback, the learner and the metrics see only the measurements
+:math:`\tilde x_k` (``CycleLog.q``, ``.v``) and the feedback computed from them; the true
+states are logged apart (``CycleLog.q_true``) for tests. The known model
+(``Experiment.dynamics``) is never changed and is never given the noise.
+
+Every draw comes from the loop's ``rng``, a numpy Generator that the cycle runner seeds from
+(seed, cycle) before each cycle (:func:`feltool.ilc.cycle_runner`), so a resumed run draws the
+same noise.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pinocchio as pin
+
+from feltool.config import DisturbanceConfig
+from feltool.dynamics import Dynamics, make_dynamics
+from feltool.simulate import ClosedLoop, CycleLog
+
+if TYPE_CHECKING:
+    from feltool.config import ExperimentConfig
+    from feltool.experiment import Experiment
+
+
+def scaled_model(model: pin.Model, mass_scale: float, length_scale: float) -> pin.Model:
+    """A copy of ``model`` with every body's mass and inertia times ``mass_scale`` and every
+    length times ``length_scale`` (joint placements, centres of mass; rotational inertia times
+    ``mass_scale * length_scale**2``)."""
+    out = model.copy()
+    for j in range(1, out.njoints):
+        placement = out.jointPlacements[j]
+        out.jointPlacements[j] = pin.SE3(placement.rotation,
+                                         placement.translation * length_scale)
+        inertia = out.inertias[j]
+        out.inertias[j] = pin.Inertia(float(inertia.mass) * mass_scale,
+                                      inertia.lever * length_scale,
+                                      inertia.inertia * mass_scale * length_scale ** 2)
+    return out
+
+
+class DisturbedLoop(ClosedLoop):
+    """The closed loop of :class:`~feltool.simulate.ClosedLoop` with the disturbances of the
+    module docstring; :meth:`run_cycle` has the same interface.
+
+    Args:
+        spec: The ``disturbances:`` block.
+        (others): As for :class:`~feltool.simulate.ClosedLoop`; ``dynamics`` is the plant.
+
+    Attributes:
+        rng: The Generator of the next cycle's draws (set by the cycle runner).
+    """
+
+    def __init__(self, dynamics: Dynamics, law, actuated, dt, substeps, integrator,
+                 error_rows, limits, spec: DisturbanceConfig):
+        super().__init__(dynamics, law, actuated, dt, substeps, integrator, error_rows, limits)
+        self.spec = spec
+        self.rng: np.random.Generator = np.random.default_rng(0)
+        self.buffer: np.ndarray | None = None  # commanded torques not yet applied (d, nv)
+
+    def run_cycle(self, q, v, R, Rd, u_ff) -> CycleLog:
+        """One cycle; ``log.q``/``log.v`` are the measurements, ``log.q_true``/``log.v_true`` the
+        plant's states, ``log.tau_applied`` the torques the plant received, in [N m]."""
+        n, nv, nq = len(R), len(v), len(q)
+        sp, rng = self.spec, self.rng
+        Nq = rng.normal(0.0, 1.0, (n, nq)) * sp.measurement_noise.q
+        Nv = rng.normal(0.0, 1.0, (n, nv)) * sp.measurement_noise.v
+        W = rng.normal(0.0, 1.0, (n, nv)) * sp.torque_noise
+        d = sp.input_delay_steps
+        Qm, Vm, Qt, Vt = (np.empty((n, m)) for m in (nq, nv, nq, nv))
+        U, Urows, Uerr, Cmd, Tau = (np.empty((n, nv)) for _ in range(5))
+        S = self.actuated
+        for k in range(n):
+            Qt[k], Vt[k] = q, v
+            Qm[k] = self.dynamics.integrate(q, Nq[k][:nv]) if nq != nv else q + Nq[k]
+            Vm[k] = v + Nv[k]
+            U[k], Urows[k], Uerr[k] = self.law.terms(Qm[k], Vm[k], R[k], Rd[k], self.error_rows)
+            Cmd[k] = S * (u_ff[k] + U[k])
+            if d:
+                if self.buffer is None:
+                    self.buffer = np.repeat(Cmd[k][None], d, axis=0)
+                applied = self.buffer[0].copy()
+                self.buffer = np.vstack([self.buffer[1:], Cmd[k][None]])
+            else:
+                applied = Cmd[k]
+            Tau[k] = applied + S * W[k]
+            q, v = self.advance(q, v, Tau[k])
+        log = CycleLog(Qm, Vm, U, q, v, Urows, Uerr)
+        log.q_true, log.v_true, log.tau_applied = Qt, Vt, Tau
+        if self.limits is not None and nq == nv:
+            log.limit_hits = self.limits.hits(Qt, Cmd)
+        return log
+
+    def extra_state(self) -> dict[str, np.ndarray]:
+        """The delay buffer, for checkpoints."""
+        return {} if self.buffer is None else {"disturbance_buffer": self.buffer.copy()}
+
+    def restore_state(self, saved) -> None:
+        if "disturbance_buffer" in saved:
+            self.buffer = np.array(saved["disturbance_buffer"], dtype=float)
+
+
+def disturbed_plant(exp: Experiment) -> Dynamics:
+    """The plant under ``disturbances.model_error``: the known model's robot scaled (the known
+    model itself untouched), or the experiment's plant when nothing is scaled."""
+    me = exp.config.disturbances.model_error
+    if me.mass_scale == 1.0 and me.length_scale == 1.0:
+        return exp.plant if exp.plant is not None else exp.dynamics
+    backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
+    return make_dynamics(scaled_model(exp.robot.model, me.mass_scale, me.length_scale), backend)
+
+
+def disturbed_loop(exp: Experiment) -> DisturbedLoop | None:
+    """A fresh disturbed loop (one per seed: it owns the delay buffer), or None without a
+    ``disturbances:`` block."""
+    spec = exp.config.disturbances
+    if spec is None:
+        return None
+    loop = exp.loop
+    return DisturbedLoop(disturbed_plant(exp), exp.law, loop.actuated, loop.dt, loop.substeps,
+                         loop.integrator, loop.error_rows, loop.limits, spec)
+
+
+def problems(cfg: ExperimentConfig) -> list[tuple[str, str]]:
+    """Combinations ``disturbances:`` does not support, as ``(yaml_path, message)``."""
+    if cfg.disturbances is None:
+        return []
+    out = []
+    if cfg.learning.step != "per_cycle":
+        out.append(("disturbances", "needs learning.step: per_cycle"))
+    if cfg.backend == "compiled":
+        out.append(("disturbances", "needs the pinocchio or casadi backend"))
+    if cfg.walking is not None or cfg.actuation is not None:
+        out.append(("disturbances", "not available for walkers or allocated motors yet"))
+    if cfg.learning.model is not None:
+        out.append(("disturbances", "cannot be combined with learning.model yet"))
+    if cfg.events:
+        out.append(("disturbances", "cannot be combined with events"))
+    me = cfg.disturbances.model_error
+    if cfg.plant is not None and (me.mass_scale != 1.0 or me.length_scale != 1.0):
+        out.append(("disturbances.model_error", "scales the known model into the plant; it "
+                                                "cannot be combined with a plant block"))
+    return out
+
+
+__all__ = ["DisturbedLoop", "disturbed_loop", "disturbed_plant", "problems", "scaled_model"]

@@ -1,0 +1,159 @@
+"""Disturbances act on the plant only: the learner's inputs are the noisy measurements, the
+known model sees nothing but the desired trajectory, delay and torque noise reach the plant,
+and model error scales the plant's physics by the scaling laws."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from feltool.disturbances import disturbed_loop, scaled_model
+from feltool.experiment import load_experiment
+from feltool.ilc import cycle_runner, lifted_jacobian
+
+from .conftest import CONFIGS
+
+STANDARD = CONFIGS / "two_link_standard.yaml"
+NOISE = ["disturbances.measurement_noise.q=0.01", "disturbances.measurement_noise.v=0.1"]
+
+
+class Recorder:
+    """Our own known model wrapped so that every argument it is given is kept."""
+
+    def __init__(self, inner):
+        self.inner, self.calls = inner, []
+        self.nq, self.nv, self.euclidean = inner.nq, inner.nv, inner.euclidean
+
+    def __getattr__(self, name):
+        fn = getattr(self.inner, name)
+
+        def call(*args):
+            self.calls.append((name, [np.array(a, copy=True) for a in args]))
+            return fn(*args)
+
+        return call
+
+
+def _stabilizing_pd(exp, Q, V):
+    """The elbow's law in closed form (§3.1): kp (pi/2 - (q1 + q2)) - kd (v1 + v2)."""
+    kp, kd = 50.0, 10.0
+    return kp * (np.pi / 2 - Q.sum(axis=1)) - kd * V.sum(axis=1)
+
+
+def test_fel_learns_from_the_noisy_measurements_and_the_model_never_sees_them():
+    exp = load_experiment(STANDARD, NOISE)
+    known = Recorder(exp.dynamics)
+    plant = exp.plant
+    exp.dynamics = known  # the plant (exp.plant) stays the unwrapped object
+    theta = exp.initial_parameters(0)
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    run = cycle_runner(exp, theta, 0, lambda p: exp.loop)
+    q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    out = run(theta, q, v, plant)
+    log, _ = out.trace()
+
+    # The measurements are the true states plus noise of the configured size.
+    dq, dv = log.q - log.q_true, log.v - log.v_true
+    assert 0.8 * 0.01 < dq.std() < 1.2 * 0.01 and abs(dq.mean()) < 0.003
+    assert 0.8 * 0.1 < dv.std() < 1.2 * 0.1
+    # The error signal is the PD law of the measurements, not of the true states.
+    np.testing.assert_allclose(log.u_err[:, 1], _stabilizing_pd(exp, log.q, log.v), atol=1e-10)
+    e_true = _stabilizing_pd(exp, log.q_true, log.v_true)
+    assert np.abs(log.u_err[:, 1] - e_true).std() > 0.3  # kp 0.01 sqrt(2) + kd 0.1 sqrt(2)
+    # FEL's update used that noisy error signal.
+    J = exp.learner.jacobian(known.inner, theta, Qd, Vd, Ad)
+    E_true = np.zeros_like(log.u_err)
+    E_true[:, 1] = e_true
+    np.testing.assert_allclose(out.theta_next, exp.learner.step(theta, J, log.u_err), atol=1e-12)
+    assert not np.allclose(out.theta_next, exp.learner.step(theta, J, E_true), atol=1e-6)
+    # The known model was only asked about the desired trajectory, and never simulated.
+    assert known.calls and all(name.startswith("inverse") for name, _ in known.calls)
+    for _, args in known.calls:
+        np.testing.assert_array_equal(args[0], Qd)
+        np.testing.assert_array_equal(args[1], Vd)
+        np.testing.assert_array_equal(args[2], Ad)
+    # The plant moved on the true states: its own forward model reproduces them.
+    qk, vk = q.copy(), v.copy()
+    for k in range(len(Qd)):
+        np.testing.assert_allclose(qk, log.q_true[k], atol=1e-12)
+        vk = vk + exp.config.dt * pin.aba(exp.robot.model, exp.robot.model.createData(), qk, vk,
+                                          log.tau_applied[k])
+        qk = qk + exp.config.dt * vk
+    np.testing.assert_allclose(log.tau_applied, log.u_fb + exp.dynamics.inverse_batch(Qd, Vd, Ad),
+                               atol=1e-10)
+
+
+def test_norm_optimal_ilc_linearizes_about_the_measured_cycle():
+    exp = load_experiment(STANDARD, NOISE + ["learning.update=ilc_norm_optimal"])
+    theta = exp.initial_parameters(1)
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    run = cycle_runner(exp, theta, 1, lambda p: exp.loop)
+    q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    log, _ = run(theta, q, v, exp.plant).trace()
+    u_ff = exp.dynamics.inverse_batch(Qd, Vd, Ad)
+    idx = np.array([1])
+    w = exp.config.ilc
+
+    def update(Q, V, E):
+        G = lifted_jacobian(exp.robot.model, exp.law, exp.loop.actuated, exp.config.dt, 1,
+                            "semi_implicit_euler", Q, V, R, Rd, u_ff + log.u_fb, idx, idx,
+                            exp.loop.error_rows)
+        n = len(E)
+        return -np.linalg.solve(w.weight_error * G.T @ G + w.weight_change * np.eye(n),
+                                w.weight_error * G.T @ E)
+
+    measured = update(log.q, log.v, log.u_err[:, 1])
+    np.testing.assert_allclose(run.state["dU"][:, 0], measured, atol=1e-9)
+    true = update(log.q_true, log.v_true, _stabilizing_pd(exp, log.q_true, log.v_true))
+    assert np.abs(true - measured).max() > 1e-3
+
+
+def test_delay_and_torque_noise_reach_the_plant():
+    exp = load_experiment(STANDARD, ["disturbances.input_delay_steps=3",
+                                     "disturbances.torque_noise=0.5"])
+    theta = exp.initial_parameters(2)
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    u_ff = exp.dynamics.inverse_batch(Qd, Vd, Ad)
+    q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    loop = disturbed_loop(exp)
+    loop.rng = np.random.default_rng(5)
+    log = loop.run_cycle(q, v, R, Rd, u_ff)
+    cmd = u_ff + log.u_fb
+    np.testing.assert_array_equal(log.q, log.q_true)  # no measurement noise configured
+    w = log.tau_applied[3:] - cmd[:-3]
+    assert 0.4 < w.std() < 0.6 and abs(w.mean()) < 0.15
+    assert np.all(np.abs(log.tau_applied[:3] - cmd[0]) < 5 * 0.5)
+    # The second cycle receives the first cycle's last three commands.
+    loop.rng = np.random.default_rng(6)
+    log2 = loop.run_cycle(log.q_end, log.v_end, R, Rd, u_ff)
+    w2 = log2.tau_applied[:3] - cmd[-3:]
+    assert np.abs(w2).max() < 5 * 0.5
+    # The same generator draws the same noise.
+    loop2 = disturbed_loop(exp)
+    loop2.rng = np.random.default_rng(5)
+    np.testing.assert_array_equal(loop2.run_cycle(q, v, R, Rd, u_ff).tau_applied, log.tau_applied)
+
+
+def test_model_error_scales_the_plant_by_the_scaling_laws_and_leaves_the_model():
+    exp = load_experiment(STANDARD, ["disturbances.model_error.mass_scale=1.5",
+                                     "disturbances.model_error.length_scale=0.8"])
+    model = exp.robot.model
+    masses = [float(i.mass) for i in model.inertias]
+    plant = disturbed_loop(exp).dynamics
+    assert plant is not exp.dynamics
+    assert [float(i.mass) for i in exp.robot.model.inertias] == masses
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.uniform(-np.pi, np.pi, 2)
+        # Every term of M is a mass times a length squared: M_plant = s_m s_l^2 M.
+        M = pin.crba(model, model.createData(), q)
+        Ms = pin.crba(plant.model, plant.model.createData(), q)
+        np.testing.assert_allclose(np.triu(Ms), 1.5 * 0.8 ** 2 * np.triu(M), atol=1e-12)
+        # Gravity torques are a mass times a length: g_plant = s_m s_l g.
+        g = pin.computeGeneralizedGravity(model, model.createData(), q)
+        gs = pin.computeGeneralizedGravity(plant.model, plant.model.createData(), q)
+        np.testing.assert_allclose(gs, 1.5 * 0.8 * g, atol=1e-12)
+    scaled = scaled_model(model, 2.0, 1.0)
+    assert sum(float(i.mass) for i in scaled.inertias) == 2.0 * sum(masses)
