@@ -126,12 +126,12 @@ def main() -> int:
             print(f"{fault.name}: {'caught' if caught else 'NOT CAUGHT'} in {secs:.0f} s: "
                   f"{summary}", flush=True)
             shutil.rmtree(dest, ignore_errors=True)
-    print("\n| fault | what | tests run | caught | first failing test |")
-    print("|---|---|---|---|---|")
-    for fault, caught, summary, _ in rows:
+    print("\n| fault | what | tests run | caught | first failing test | time [s] |")
+    print("|---|---|---|---|---|---|")
+    for fault, caught, summary, secs in rows:
         first = summary.split(";")[0].replace("FAILED ", "").split(" - ")[0]
         print(f"| `{fault.name}` | {fault.what} | {', '.join(fault.tests)} | "
-              f"{'yes' if caught else '**no**'} | {first} |")
+              f"{'yes' if caught else '**no**'} | {first} | {secs:.0f} |")
     return 0 if ok else 1
 
 
