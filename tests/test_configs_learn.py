@@ -20,7 +20,7 @@ SEEDS = (0, 1, 2)
 CASES = {
     "two_link_standard": (40, 0.1),            # [0.044, 0.040, 0.008]
     "two_link_human_arm": (10, 0.05),          # [0.002, 0.002, 0.007]
-    "two_link_standard_mismatch": (40, 0.15),  # [0.060, 0.061, 0.014]; 10 seeds x 150 cycles
+    "two_link_standard_mismatch": (40, 0.15),  # [0.060, 0.055, 0.014]; 10 seeds x 150 cycles
                                                # in tests/test_mismatch.py
     "double_pendulum_balance": (40, 0.4),      # [0.280, 0.271, 0.238]: the slow one
     "ur5_wrist_level": (40, 0.1),              # [0.034, 0.038, 0.028]
