@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 from feltool import __version__
@@ -23,24 +24,31 @@ from feltool.errors import FeltoolError, InputError
 
 
 def parse_seeds(spec: str) -> list[int]:
-    """``0-19`` | ``0,3,7`` | ``5`` (a single seed) -> a sorted list of seeds."""
-    seeds: list[int] = []
+    """``0-19`` | ``0,3,7`` | ``5`` (a single seed) -> a sorted list of distinct seeds, at most
+    :data:`~feltool.bounds.MAX_SEEDS` of them (counted before any list is built)."""
+    from feltool.bounds import MAX_SEED, MAX_SEEDS
+
+    ranges: list[tuple[int, int]] = []
     try:
         for part in spec.split(","):
             part = part.strip()
-            if "-" in part:
-                lo, hi = (int(x) for x in part.split("-", 1))
-                if hi < lo or lo < 0:
-                    raise ValueError
-                seeds += list(range(lo, hi + 1))
-            else:
-                value = int(part)
-                if value < 0:
-                    raise ValueError
-                seeds.append(value)
+            lo, hi = (int(x) for x in part.split("-", 1)) if "-" in part else (int(part),) * 2
+            if hi < lo or lo < 0:
+                raise ValueError
+            ranges.append((lo, hi))
     except ValueError:
         raise InputError(f"--seeds: cannot read '{spec}'; use e.g. 0-19, 0,3,7 or 5") from None
-    return sorted(set(seeds))
+    count = sum(hi - lo + 1 for lo, hi in ranges)
+    if count > MAX_SEEDS:
+        raise InputError(f"--seeds: '{spec}' is {count} seeds; at most {MAX_SEEDS} per run")
+    if max(hi for _, hi in ranges) > MAX_SEED:
+        raise InputError(f"--seeds: a seed may be at most {MAX_SEED} (2^63 - 1)")
+    seeds = [s for lo, hi in ranges for s in range(lo, hi + 1)]
+    repeated = sorted(s for s, n in Counter(seeds).items() if n > 1)
+    if repeated:
+        raise InputError(f"--seeds: seed {', '.join(map(str, repeated[:10]))} given more than "
+                         f"once in '{spec}'; each seed runs once")
+    return sorted(seeds)
 
 
 def _positive_int(text: str) -> int:
@@ -187,6 +195,29 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_walking(summary: dict) -> None:
+    """Physical walkers: per seed, whether it walked, and the gait's numbers."""
+    walkers = [s for s in summary["seeds"] if isinstance(s.get("walking"), dict)]
+    if not walkers:
+        return
+    fmt = lambda x, f: "-" if x is None else format(x, f)  # noqa: E731
+    for s in walkers:
+        w = s["walking"]
+        rho = (s.get("poincare") or {}).get("spectral_radius")
+        head = "walked" if w["walked"] else f"NOT WALKING ({w['not_walking'] or 'fell'})"
+        print(f"  seed {s['seed']} {head}: {w.get('steps', 0)} steps, step "
+              f"{fmt(w.get('step_length_m'), '.3f')} m, speed {fmt(w.get('speed_m_per_s'), '.3f')}"
+              f" m/s, CoT {fmt(w.get('cost_of_transport'), '.3f')}, torso RMS "
+              f"{fmt(w.get('stabilized_rms_last_rad'), '.3g')} rad, ratio "
+              f"{fmt(s.get('fb_ratio'), '.2%')}, Poincare rho {fmt(rho, '.3f')}; min F_n "
+              f"{fmt(w.get('min_normal_force_N'), '.4g')} N, max |F_t|/F_n "
+              f"{fmt(w.get('max_friction_ratio'), '.3f')}")
+    agg = summary["aggregate"]
+    kinds = ", ".join(f"{k} {c}" for k, c in agg.get("not_walking", {}).items())
+    print(f"  walked without falling: {agg.get('n_walked', 0)}/{len(walkers)} seeds; not "
+          f"walking: {agg.get('n_not_walking', 0)}" + (f" ({kinds})" if kinds else ""))
+
+
 def print_summary(summary: dict, out_dir: Path) -> None:
     agg = summary["aggregate"]
     print(f"{summary['config']}: {agg['n_seeds']} seeds, error signal = feedback of "
@@ -207,6 +238,7 @@ def print_summary(summary: dict, out_dir: Path) -> None:
                      for kind, d in (("position", lim["joint_limit_steps"]),
                                      ("torque", lim["torque_limit_steps"])) if d]
             print(f"  seed {s['seed']} hit the URDF's " + "; ".join(parts))
+    _print_walking(summary)
     conv = agg["converged_cycle_max"]
     print(f"  converged (below 5 % of the initial feedback for good): {agg['n_converged']}/"
           f"{agg['n_seeds']} seeds" + (f", mean cycle {agg['converged_cycle_mean']:.1f}, "

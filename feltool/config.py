@@ -8,35 +8,126 @@ a typo is never silently ignored, and every error names the YAML path that is wr
 from __future__ import annotations
 
 import re
+import types
+import typing
+from collections import Counter
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
+from feltool.bounds import (
+    MAX_ABS_GRAVITY,
+    MAX_ALPHA,
+    MAX_AMPLITUDE,
+    MAX_ANGLE,
+    MAX_CONFIG_BYTES,
+    MAX_CYCLES,
+    MAX_DAMPING,
+    MAX_GAIN,
+    MAX_HARMONICS,
+    MAX_LENGTH,
+    MAX_MASS,
+    MAX_MASS_SCALE,
+    MAX_PERIOD_S,
+    MAX_RATE,
+    MAX_RATE_HZ,
+    MAX_SEED,
+    MAX_SEEDS,
+    MAX_STEPS_PER_CYCLE,
+    MAX_SWEEP_POINTS,
+    MAX_WEIGHT_SCALE,
+    MAX_WIDTH,
+)
 from feltool.errors import ConfigError
+from feltool.physical import inertia_problem
+from feltool.safe_yaml import YamlBoundError, load_yaml
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Angle = Annotated[float, Field(ge=-MAX_ANGLE, le=MAX_ANGLE, allow_inf_nan=False)]
+Length = Annotated[float, Field(ge=-MAX_LENGTH, le=MAX_LENGTH, allow_inf_nan=False)]
+Gravity = Annotated[float, Field(ge=-MAX_ABS_GRAVITY, le=MAX_ABS_GRAVITY, allow_inf_nan=False)]
+
+
+def _numeric(tp: Any) -> bool:
+    """Whether a field type would read a YAML boolean as the number 1 or 0."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Annotated:
+        return _numeric(args[0])
+    if origin in (Union, types.UnionType):
+        return any(_numeric(a) for a in args) and bool not in args
+    return tp in (int, float)
+
+
+def _bool_in(tp: Any, value: Any) -> str | None:
+    """Where a boolean sits in ``value`` that the type ``tp`` would read as a number ("" for
+    the value itself, ".2" for an item of a list), or None. Nested models check their own."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Annotated:
+        return _bool_in(args[0], value)
+    if isinstance(value, bool):
+        return "" if _numeric(tp) else None
+    if origin in (Union, types.UnionType):
+        return next((w for a in args if (w := _bool_in(a, value)) is not None), None)
+    if isinstance(value, list | tuple) and origin in (list, tuple) and args:
+        for i, item in enumerate(value):
+            item_tp = args[0] if origin is list or args[-1] is Ellipsis else \
+                args[i] if i < len(args) else Any
+            where = _bool_in(item_tp, item)
+            if where is not None:
+                return f".{i}{where}"
+    if isinstance(value, dict) and origin is dict and len(args) == 2:
+        for key, item in value.items():
+            where = _bool_in(args[1], item)
+            if where is not None:
+                return f".{key}{where}"
+    return None
 
 
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
+    @field_validator("*", mode="before")
+    @classmethod
+    def _booleans_are_not_numbers(cls, value: Any, info: ValidationInfo) -> Any:
+        """YAML reads yes/no/on/off/true/false as booleans, and pydantic would take a boolean
+        for the number 1 or 0 (``cycles: yes`` would run one cycle): refuse them wherever a
+        number is expected."""
+        field = cls.model_fields.get(info.field_name)
+        if field is None:
+            return value
+        where = _bool_in(field.annotation, value)
+        if where is not None:
+            item = f" (item {where.lstrip('.')})" if where else ""
+            raise ValueError(f"a boolean (yes/no/true/false/on/off){item} is not a number; "
+                             "write the number")
+        return value
+
 
 class SimConfig(Strict):
     """How the closed loop is simulated."""
 
-    rate_hz: PositiveFloat = Field(100.0, description="Control and sampling rate in [Hz]; one "
-                                   "feedforward/feedback sample per step.")
+    rate_hz: PositiveFloat = Field(100.0, le=MAX_RATE_HZ, description="Control and sampling "
+                                   "rate in [Hz]; one feedforward/feedback sample per step; at "
+                                   f"most {MAX_RATE_HZ:g}.")
     substeps: int = Field(1, ge=1, le=1000, description="Integration steps per control step "
                           "(the torque is held constant over them).")
     integrator: Literal["semi_implicit_euler", "explicit_euler"] = Field(
         "semi_implicit_euler", description="Integration scheme of the forward model: "
         "semi-implicit (symplectic) Euler, v += dt a; q += dt v, or explicit Euler.")
-    cycles: int = Field(200, ge=1, le=10_000_000, description="Learning cycles to run; one "
-                        "cycle is one period of the rhythmic motion.")
+    cycles: int = Field(200, ge=1, le=MAX_CYCLES, description="Learning cycles to run; one "
+                        f"cycle is one period of the rhythmic motion; 1 to {MAX_CYCLES}.")
     max_error_rad: PositiveFloat = Field(1.5, description="A seed is stopped as diverged (a "
                                          "fall) when a controlled quantity is further than this "
                                          "from its reference, in [rad].")
@@ -54,23 +145,32 @@ class SimConfig(Strict):
 class PrimitiveConfig(Strict):
     """Parameters of a rhythmic movement primitive (eq. 2.1-2.3)."""
 
-    basis: int = Field(10, ge=1, le=1000, description="Number of von Mises basis functions N.")
-    alpha_z: PositiveFloat = Field(25.0, description="Timing constant alpha_z of eq. 2.2 [-].")
-    beta_z: PositiveFloat | None = Field(None, description="Timing constant beta_z [-]; "
-                                         "default alpha_z / 4 (critically damped).")
-    width: PositiveFloat | None = Field(None, description="Width h of the von Mises basis [-]; "
-                                        "default N / 2.")
-    amplitude: PositiveFloat = Field(1.0, description="Amplitude factor r of the forcing term.")
+    basis: int = Field(10, ge=1, le=1000, description="Number of von Mises basis functions N; "
+                       "1 to 1000 (and at most the samples per cycle).")
+    alpha_z: PositiveFloat = Field(25.0, le=MAX_ALPHA, description="Timing constant alpha_z of "
+                                   f"eq. 2.2 [-]; at most {MAX_ALPHA:g}.")
+    beta_z: PositiveFloat | None = Field(None, le=MAX_ALPHA, description="Timing constant beta_z "
+                                         "[-]; default alpha_z / 4 (critically damped); at most "
+                                         f"{MAX_ALPHA:g}.")
+    width: PositiveFloat | None = Field(None, le=MAX_WIDTH, description="Width h of the von "
+                                        f"Mises basis [-]; default N / 2; at most {MAX_WIDTH:g}.")
+    amplitude: PositiveFloat = Field(1.0, le=MAX_AMPLITUDE, description="Amplitude factor r of "
+                                     f"the forcing term [-]; at most {MAX_AMPLITUDE:g}.")
 
 
 class PrimitiveOverride(Strict):
     """Per-joint override of the primitive defaults; unset fields keep the defaults."""
 
-    basis: int | None = Field(None, ge=1, le=1000, description="Number of basis functions N.")
-    alpha_z: PositiveFloat | None = Field(None, description="Timing constant alpha_z [-].")
-    beta_z: PositiveFloat | None = Field(None, description="Timing constant beta_z [-].")
-    width: PositiveFloat | None = Field(None, description="Basis width h [-].")
-    amplitude: PositiveFloat | None = Field(None, description="Amplitude factor r [-].")
+    basis: int | None = Field(None, ge=1, le=1000, description="Number of basis functions N; "
+                              "1 to 1000.")
+    alpha_z: PositiveFloat | None = Field(None, le=MAX_ALPHA, description="Timing constant "
+                                          f"alpha_z [-]; at most {MAX_ALPHA:g}.")
+    beta_z: PositiveFloat | None = Field(None, le=MAX_ALPHA, description="Timing constant "
+                                         f"beta_z [-]; at most {MAX_ALPHA:g}.")
+    width: PositiveFloat | None = Field(None, le=MAX_WIDTH, description="Basis width h [-]; at "
+                                        f"most {MAX_WIDTH:g}.")
+    amplitude: PositiveFloat | None = Field(None, le=MAX_AMPLITUDE, description="Amplitude "
+                                            f"factor r [-]; at most {MAX_AMPLITUDE:g}.")
 
 
 class SineDemo(Strict):
@@ -79,11 +179,12 @@ class SineDemo(Strict):
     with w = 2 pi / T, s = t - delay T and k = 2, 3, ... for the entries of ``harmonics``."""
 
     kind: Literal["sine"] = Field(description="Demonstration kind.")
-    mean: FiniteFloat = Field(0.0, description="Mean (the RMP goal) in [rad].")
-    amplitude: FiniteFloat = Field(description="Amplitude in [rad].")
+    mean: Angle = Field(0.0, description=f"Mean (the RMP goal) in [rad]; within +-{MAX_ANGLE:g}.")
+    amplitude: Angle = Field(description=f"Amplitude in [rad]; within +-{MAX_ANGLE:g}.")
     phase: FiniteFloat = Field(0.0, description="Phase offset in [rad] at the start of a cycle.")
-    harmonics: list[tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=list, description=
-        "Higher harmonics k = 2, 3, ...: [amplitude in [rad], phase in [rad]] each.")
+    harmonics: list[tuple[Angle, FiniteFloat]] = Field(default_factory=list,
+        max_length=MAX_HARMONICS, description="Higher harmonics k = 2, 3, ...: [amplitude in "
+        f"[rad], phase in [rad]] each; at most {MAX_HARMONICS}.")
     delay: FiniteFloat = Field(0.0, description="Delay of the whole demonstration, as a "
                                "fraction of the period (e.g. 0.5 for a walker's other leg) [-].")
 
@@ -91,8 +192,10 @@ class SineDemo(Strict):
 class Gains(Strict):
     """PD gains of a joint's feedback law (eq. 2.7 or §3.1)."""
 
-    kp: NonNegFloat = Field(description="Proportional gain K_P in [N m/rad].")
-    kd: NonNegFloat = Field(description="Derivative gain K_D in [N m s/rad].")
+    kp: NonNegFloat = Field(le=MAX_GAIN, description="Proportional gain K_P in [N m/rad]; 0 to "
+                            f"{MAX_GAIN:g}.")
+    kd: NonNegFloat = Field(le=MAX_GAIN, description="Derivative gain K_D in [N m s/rad]; 0 to "
+                            f"{MAX_GAIN:g}.")
 
 
 Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
@@ -104,7 +207,8 @@ class Target(Strict):
     orientation of any frame about a world axis (its torque then acts through the frame
     Jacobian on every joint that moves the frame)."""
 
-    value: FiniteFloat = Field(description="Target value of the stabilized quantity in [rad].")
+    value: Angle = Field(description="Target value of the stabilized quantity in [rad]; "
+                         f"within +-{MAX_ANGLE:g}.")
     link_angle: list[str] | None = Field(None, min_length=1, description="Joints whose angles "
                                          "add up to the stabilized link's absolute angle, e.g. "
                                          "[shoulder, elbow] for q1 + q2; default the joint itself.")
@@ -132,11 +236,13 @@ class LearnConfig(Strict):
 
     init: Literal["random", "demo", "zero"] = Field("random", description="Initial weights: "
                                                    "random (from the seed), the demo's fit, or zero.")
-    weight_scale: NonNegFloat = Field(0.3, description="Random initial weights ~ N(0, s^2) with "
-                                      "s = weight_scale * max |w| over the demo-fitted primitives [-].")
-    goal_spread: NonNegFloat = Field(0.3, description="Random initial goal uniform in goal_center "
-                                     "+- goal_spread, in [rad].")
-    goal_center: FiniteFloat | None = Field(None, description="Centre of the initial goal in [rad]; "
+    weight_scale: NonNegFloat = Field(0.3, le=MAX_WEIGHT_SCALE, description="Random initial "
+                                      "weights ~ N(0, s^2) with s = weight_scale * max |w| over "
+                                      "the demo-fitted primitives [-]; at most "
+                                      f"{MAX_WEIGHT_SCALE:g}.")
+    goal_spread: NonNegFloat = Field(0.3, le=MAX_ANGLE, description="Random initial goal uniform "
+                                     f"in goal_center +- goal_spread, in [rad]; at most {MAX_ANGLE:g}.")
+    goal_center: Angle | None = Field(None, description="Centre of the initial goal in [rad]; "
                                             "default: the value that meets the joint's target with "
                                             "the other joints at their goals (or the demo's mean).")
 
@@ -155,7 +261,11 @@ class JointConfig(Strict):
     target: Target | None = Field(None, description="Stabilized quantity (stabilize only).")
     learn: LearnConfig | None = Field(None, description="Learn this joint's RMP by FEL.")
     primitive: PrimitiveOverride | None = Field(None, description="Per-joint RMP settings.")
-    posture: FiniteFloat = Field(0.0, description="Angle a locked joint is held at, in [rad].")
+    posture: Angle = Field(0.0, description="Angle a locked joint is held at, in [rad]; within "
+                           f"+-{MAX_ANGLE:g}.")
+    follow_demo: bool = Field(False, description="The forward trajectory is the demonstration "
+        "itself at the control rate, not its RMP fit (e.g. a designed gait's joints: an impact's "
+        "velocity jump is beyond a smooth periodic RMP); not with learn.")
 
     @model_validator(mode="after")
     def _role_fields(self) -> JointConfig:
@@ -172,6 +282,8 @@ class JointConfig(Strict):
                 self.learn is None or self.learn.init == "demo"):
             problems.append(f"a '{self.role}' joint needs a 'demo' or 'learn' (with init random "
                             "or zero) to define its RMP")
+        if self.follow_demo and (self.demo is None or self.learn is not None):
+            problems.append("'follow_demo' needs a 'demo' and no 'learn'")
         if self.role == "locked" and (self.learn or self.demo or self.gains):
             problems.append("a 'locked' joint takes only 'posture'")
         if problems:
@@ -194,7 +306,7 @@ class ModelLearningConfig(Strict):
         "The correction drives only these joints (docs/model_learning.md).")
     basis: int = Field(20, ge=1, le=1000, description="Number of phase basis functions per "
                        "joint (phase_basis only).")
-    width: PositiveFloat | None = Field(None, description="Width h of the phase basis [-] "
+    width: PositiveFloat | None = Field(None, le=MAX_WIDTH, description="Width h of the phase basis [-] "
                                         "(phase_basis only); default basis / 2.")
     update: Literal["gradient", "gauss_newton"] = Field("gradient", description="gradient: "
         "eq. 3.4, theta_m += rate * sum_k Phi_k^T e_k; gauss_newton: the Levenberg-Marquardt "
@@ -202,13 +314,15 @@ class ModelLearningConfig(Strict):
         "alone, but it interferes with trajectory FEL).")
     step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
         "cycle or after every control step (per_step: gradient only).")
-    rate: NonNegFloat = Field(description="Learning rate alpha_m (required; its unit depends on "
+    rate: NonNegFloat = Field(le=MAX_RATE, description="Learning rate alpha_m (required; at "
+        f"most {MAX_RATE:g}; its unit depends on "
         "the features): gradient: per sample and cycle, in [theta_m unit / (N m)^2] -- stable "
         "below 2 / (largest eigenvalue of sum_k Phi_k^T Phi_k); gauss_newton: the fraction of the "
         "Levenberg-Marquardt step [-]. See docs/model_learning.md.")
-    damping: PositiveFloat = Field(1.0e-6, description="Levenberg-Marquardt damping, relative "
-                                   "to the mean diagonal of Phi^T Phi [-]; directions the motion "
-                                   "does not excite are then left unchanged.")
+    damping: PositiveFloat = Field(1.0e-6, le=MAX_DAMPING, description="Levenberg-Marquardt "
+                                   "damping, relative to the mean diagonal of Phi^T Phi [-]; "
+                                   "directions the motion does not excite are then left "
+                                   f"unchanged; at most {MAX_DAMPING:g}.")
     jacobian: Literal["learned", "nominal"] = Field("learned", description="Inverse model whose "
         "derivatives the trajectory learner's Jacobian uses when both learn: learned = the known "
         "model plus the current correction (chain rule through Phi theta_m; regressor features "
@@ -220,15 +334,16 @@ class BodyOverride(Strict):
     """The plant's physical parameters of one body: the rigid body moved by a joint (with every
     link welded to it). Unset fields keep the model's values."""
 
-    mass_scale: PositiveFloat | None = Field(None, description="Scale mass and rotational "
+    mass_scale: PositiveFloat | None = Field(None, le=MAX_MASS_SCALE, description="Scale mass and rotational "
         "inertia together (a uniformly denser body; the centre of mass stays) [-].")
-    mass: PositiveFloat | None = Field(None, description="Mass in [kg] (rotational inertia "
+    mass: PositiveFloat | None = Field(None, le=MAX_MASS, description="Mass in [kg] (rotational inertia "
                                        "unchanged unless `inertia` is given).")
-    com: list[FiniteFloat] | None = Field(None, min_length=3, max_length=3, description="Centre "
+    com: list[Length] | None = Field(None, min_length=3, max_length=3, description="Centre "
                                           "of mass in the joint's frame, [x, y, z] in [m].")
     inertia: list[FiniteFloat] | None = Field(None, min_length=6, max_length=6, description=""
         "Rotational inertia about the centre of mass, [ixx, ixy, ixz, iyy, iyz, izz] in "
-        "[kg m^2] (URDF order).")
+        "[kg m^2] (URDF order); positive semi-definite, principal moments satisfying the "
+        "triangle inequality (docs/robots.md).")
 
     @model_validator(mode="after")
     def _one_mass(self) -> BodyOverride:
@@ -236,25 +351,44 @@ class BodyOverride(Strict):
             raise ValueError("give 'mass_scale' or 'mass', not both")
         return self
 
+    @field_validator("inertia")
+    @classmethod
+    def _physical(cls, inertia):
+        return _physical_inertia(inertia)
+
+
+def _physical_inertia(inertia: list[float] | None) -> list[float] | None:
+    problem = None if inertia is None else inertia_problem(inertia)
+    if problem:
+        raise ValueError(problem)
+    return inertia
+
 
 class Payload(Strict):
     """A rigid payload fixed to a frame of the plant (e.g. a tool at the arm's tip)."""
 
     frame: str = Field(min_length=1, description="URDF link (or Pinocchio frame) it is fixed to.")
-    mass: PositiveFloat = Field(description="Mass in [kg].")
-    com: list[FiniteFloat] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
+    mass: PositiveFloat = Field(le=MAX_MASS, description=f"Mass in [kg]; at most {MAX_MASS:g}.")
+    com: list[Length] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
                                    description="Centre of mass in that frame, [x, y, z] in [m].")
     inertia: list[FiniteFloat] = Field([0.0] * 6, min_length=6, max_length=6, description=""
         "Rotational inertia about its centre of mass, [ixx, ixy, ixz, iyy, iyz, izz] in "
         "[kg m^2]; default a point mass.")
+
+    @field_validator("inertia")
+    @classmethod
+    def _physical(cls, inertia):
+        return _physical_inertia(inertia)
 
 
 class JointFriction(Strict):
     """Joint friction of the plant, tau_f = viscous * v + coulomb * tanh(v / coulomb_velocity),
     opposing the motion (the known model has none)."""
 
-    viscous: NonNegFloat = Field(0.0, description="Viscous damping in [N m s/rad].")
-    coulomb: NonNegFloat = Field(0.0, description="Coulomb friction level in [N m].")
+    viscous: NonNegFloat = Field(0.0, le=MAX_GAIN, description="Viscous damping in [N m s/rad]; "
+                                 f"at most {MAX_GAIN:g}.")
+    coulomb: NonNegFloat = Field(0.0, le=MAX_GAIN, description="Coulomb friction level in [N m]; "
+                                 f"at most {MAX_GAIN:g}.")
     coulomb_velocity: PositiveFloat = Field(0.01, description="Velocity scale of the smooth "
                                             "Coulomb term in [rad/s].")
 
@@ -276,10 +410,12 @@ class PlantConfig(Strict):
 class Rates(Strict):
     """Learning rates alpha of eq. 3.6, separate for weights and goal."""
 
-    weights: NonNegFloat = Field(0.15, description="Rate for the RMP weights (gradient) or the "
-                                 "fraction of the Levenberg-Marquardt step taken (gauss_newton).")
-    goal: NonNegFloat = Field(2.0e-5, description="Rate for the RMP goal (always gradient). The "
-                              "update sums over a cycle's samples, so rates scale with rate_hz.")
+    weights: NonNegFloat = Field(0.15, le=MAX_RATE, description="Rate for the RMP weights "
+                                 "(gradient) or the fraction of the Levenberg-Marquardt step "
+                                 f"taken (gauss_newton); at most {MAX_RATE:g}.")
+    goal: NonNegFloat = Field(2.0e-5, le=MAX_RATE, description="Rate for the RMP goal (always "
+                              "gradient). The update sums over a cycle's samples, so rates "
+                              f"scale with rate_hz; at most {MAX_RATE:g}.")
 
 
 class LearningConfig(Strict):
@@ -293,14 +429,15 @@ class LearningConfig(Strict):
     step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
         "cycle (the RMP is then reset onto its new limit cycle) or after every control step.")
     rates: Rates = Field(default_factory=Rates, description="Learning rates.")
-    damping: PositiveFloat = Field(1.0e-2, description="Levenberg-Marquardt damping, relative to "
-                                   "the mean diagonal of J^T J [-].")
+    damping: PositiveFloat = Field(1.0e-2, le=MAX_DAMPING, description="Levenberg-Marquardt "
+                                   "damping, relative to the mean diagonal of J^T J [-]; at most "
+                                   f"{MAX_DAMPING:g}.")
     sensitivity: Literal["exact", "finite_difference", "casadi"] = Field("exact", description=
         "How d u_ff / d theta is computed: exact (RMP sensitivity x Pinocchio's RNEA "
         "derivatives), the thesis's numerical differentiation, or CasADi's algorithmic "
         "differentiation through the RMP and a symbolic RNEA.")
-    fd_epsilon: PositiveFloat = Field(1.0e-6, description="Finite-difference step, relative "
-                                      "to max(1, |theta_i|) [-].")
+    fd_epsilon: PositiveFloat = Field(1.0e-6, le=1.0, description="Finite-difference step, "
+                                      "relative to max(1, |theta_i|) [-]; at most 1.")
     impact_window_s: NonNegFloat = Field(0.0, description="Walkers only: leave the error "
         "signal's samples within this time after every impact out of the update (the impact's "
         "velocity jump makes a feedback spike that no smooth RMP can remove) [s]; 0 = off.")
@@ -351,31 +488,134 @@ class FootPlacement(Strict):
                               "is ahead of schedule.")
 
 
+class FootConfig(Strict):
+    """A foot's contact point: a URDF frame, or a link and an offset in that link's frame."""
+
+    frame: str | None = Field(None, description="URDF frame (link) at the contact point.")
+    link: str | None = Field(None, description="URDF link carrying the contact point.")
+    offset: tuple[FiniteFloat, FiniteFloat, FiniteFloat] = Field((0.0, 0.0, 0.0), description=
+        "Contact point in the link's frame, in [m] (with link).")
+
+    @model_validator(mode="after")
+    def _one(self) -> FootConfig:
+        if (self.frame is None) == (self.link is None):
+            raise ValueError("give exactly one of 'frame' or 'link' (with 'offset')")
+        return self
+
+
 class WalkingConfig(Strict):
-    """Hybrid walking: a pinned stance foot, steps ending on a guard, stance/swing relabelling.
+    """Walking, in one of two forms (docs/biped.md).
 
-    Coordinates: ``absolute`` gives each joint's link angle from the vertical in stance-relative
-    labels (theta = A q). Each joint's RMP describes, in these absolute angles, the link that the
-    joint moves in the cycle's first step; after every impact the ``swap`` pair is exchanged
-    (X+ = [q2, q1, q3, ...] in the thesis's absolute angles)."""
+    **Physical walker** (``feet`` given): the robot on a sagittal floating base (x, z, pitch) with
+    point feet; the stance foot is a contact constraint, a step ends when the swing foot reaches
+    the ground moving down (located inside the control step), the touchdown is a rigid impact
+    (``pin.impulseDynamics``) followed by the left/right relabelling of ``legs``, and the contact
+    physics is checked all along: a seed that leaves it is *not walking* and stops like a fall.
 
-    absolute: dict[str, list[str]] = Field(min_length=1, description="For every joint: the joints "
-        "whose angles add up to its link's absolute angle (stance-relative labels).")
-    swap: tuple[str, str] = Field(description="The two joints whose absolute angles (and "
-                                  "velocities) are exchanged at an impact: stance and swing leg.")
-    impact: Literal["relabel", "rigid"] = Field("relabel", description="relabel: the thesis's "
-        "switch of labels, velocities kept; rigid: a perfectly inelastic foot impact (planar "
-        "impact map solved in the model with a free base), then relabelling.")
-    contact_frame: str | None = Field(None, description="Frame of the swing foot (URDF link), "
-                                      "needed by impact: rigid.")
-    steps_per_cycle: int = Field(2, ge=1, le=100, description="Steps (impacts) per cycle.")
-    guard: Guard = Field(description="When a step ends.")
+    **Pinned walker** (the thesis's reference; ``absolute``, ``swap``, ``guard``): the stance foot
+    pinned to the world, steps ending on a guard, stance/swing relabelling. Coordinates:
+    ``absolute`` gives each joint's link angle from the vertical in stance-relative labels
+    (theta = A q); after every impact the ``swap`` pair is exchanged (X+ = [q2, q1, q3, ...])."""
+
+    # -- physical walker ---------------------------------------------------------------------
+    base: Literal["planar"] | list[str] = Field("planar", description="Physical walker: planar "
+        "= feltool adds the joints base_x, base_z (prismatic, [m]) and base_pitch (about y, "
+        "[rad]) above the URDF's root link; or the names of the URDF's own three base joints "
+        "(x translation, z translation, pitch), in that order.")
+    feet: dict[Literal["left", "right"], FootConfig] | None = Field(None, description=""
+        "Physical walker: the point contacts of the left and right foot (both), each at the end "
+        "of its leg's chain.")
+    legs: list[tuple[str, str]] | None = Field(None, min_length=1, description="Physical "
+        "walker: pairs [left joint, right joint] exchanged at every touchdown (relabelling), "
+        "e.g. [[left_hip, right_hip], [left_knee, right_knee]].")
+    stance: Literal["left", "right"] = Field("left", description="Physical walker: the stance "
+        "foot of every step in stance-relative labels (after each touchdown the relabelling "
+        "gives the new stance leg this name), so each joint's RMP describes one step.")
+    friction: PositiveFloat = Field(0.7, description="Physical walker: Coulomb coefficient mu "
+        "[-]; the stance force must keep |F_x|/F_z <= mu and the touchdown impulse |I_x|/I_z <= "
+        "mu.")
+    normal_force_min: NonNegFloat = Field(0.0, description="Physical walker: the stance foot's "
+        "normal force must stay above this, in [N] (and above 0).")
+    scuff_exempt_m: NonNegFloat | None = Field(None, description="Physical walker: the swing "
+        "foot may be below the ground within this horizontal distance of the stance foot, in "
+        "[m]; default 0.05 for a walker without knees (one legs pair), 0 with knees.")
+    clearance_tol_m: NonNegFloat = Field(0.001, description="Physical walker: how far the "
+        "swing foot may graze below the ground outside the scuffing zone (e.g. the trailing "
+        "foot just after lift-off) before the seed is not walking, in [m]; 0 = strict.")
+    phase: Literal["clock", "touchdown", "mechanical"] = Field("clock", description="Physical "
+        "walker: the RMPs run on time (clock); their phase restarts at every touchdown "
+        "(touchdown: a cycle lasts steps_per_cycle steps, a step longer than the nominal one "
+        "holds the last sample); or, restarting at touchdown too, the phase within a step "
+        "follows the centre of mass's horizontal position over the stance foot through its "
+        "desired values (mechanical, as in hybrid zero dynamics; the desired velocities scaled "
+        "by the phase's rate; the desired centre of mass must move forward all through the "
+        "step).")
+    # -- pinned walker -----------------------------------------------------------------------
+    absolute: dict[str, list[str]] | None = Field(None, min_length=1, description="Pinned "
+        "walker: for every joint, the joints whose angles add up to its link's absolute angle "
+        "(stance-relative labels).")
+    swap: tuple[str, str] | None = Field(None, description="Pinned walker: the two joints whose "
+        "absolute angles (and velocities) are exchanged at an impact: stance and swing leg.")
+    impact: Literal["relabel", "rigid"] = Field("relabel", description="Pinned walker: relabel "
+        "= the thesis's switch of labels, velocities kept; rigid = a perfectly inelastic foot "
+        "impact, then relabelling. A physical walker's impact is always rigid "
+        "(pin.impulseDynamics at the landing foot).")
+    contact_frame: str | None = Field(None, description="Pinned walker: frame of the swing foot "
+                                      "(URDF link), needed by impact: rigid.")
+    steps_per_cycle: int = Field(2, ge=1, le=100, description="Steps (impacts) per cycle; "
+        "default 2 for a pinned walker, 1 for a physical one (period_s is then one step).")
+    guard: Guard | None = Field(None, description="Pinned walker: when a step ends.")
     fall: FallCheck | None = Field(None, description="When the walker has fallen.")
-    foot_placement: FootPlacement | None = Field(None, description="Offset a link's reference by "
-        "another link's tracking error over each step (step-to-step stabilisation, used with "
-        "impact: rigid); default off.")
+    foot_placement: FootPlacement | None = Field(None, description="Pinned walker: offset a "
+        "link's reference by another link's tracking error over each step (step-to-step "
+        "stabilisation, used with impact: rigid); default off.")
     poincare: bool = Field(True, description="After learning, find the step-to-step map's fixed "
                            "point and its eigenvalues (summary.json: poincare).")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_steps(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("feet") is not None:
+            data = {"steps_per_cycle": 1, "impact": "rigid", **data}
+        return data
+
+    @model_validator(mode="after")
+    def _form(self) -> WalkingConfig:
+        if self.physical:
+            extra = [f for f in ("absolute", "swap", "guard", "contact_frame", "foot_placement")
+                     if getattr(self, f) is not None]
+            problems = [f"'{', '.join(extra)}' belong to the pinned walker, not to one with "
+                        "'feet' (the physical walker)"] if extra else []
+            if set(self.feet) != {"left", "right"}:
+                problems.append("'feet' needs both 'left' and 'right'")
+            if self.legs is None:
+                problems.append("a physical walker needs 'legs' (the left/right joint pairs)")
+            if self.impact == "relabel":
+                problems.append("a physical walker's touchdown is a rigid impact; 'impact: "
+                                "relabel' is only for the pinned walker")
+            if problems:
+                raise ValueError("; ".join(problems))
+        else:
+            missing = [f for f in ("absolute", "swap", "guard") if getattr(self, f) is None]
+            if missing:
+                raise ValueError("a pinned walker needs " + ", ".join(missing) + " (or give "
+                                 "'feet' and 'legs' for a physical walker)")
+            extra = [f for f in ("legs",) if getattr(self, f) is not None]
+            if extra:
+                raise ValueError("'legs' is for a physical walker (with 'feet')")
+        return self
+
+    @property
+    def physical(self) -> bool:
+        """Whether this is a physical walker (point feet on a floating base)."""
+        return self.feet is not None
+
+    @property
+    def scuff_exempt(self) -> float:
+        """The scuffing zone in [m] (0.05 for one legs pair, 0 with knees, unless given)."""
+        if self.scuff_exempt_m is not None:
+            return self.scuff_exempt_m
+        return 0.05 if self.legs is not None and len(self.legs) == 1 else 0.0
 
 
 class ActuationConfig(Strict):
@@ -398,14 +638,16 @@ class EventConfig(Strict):
     """A change of the world at the start of a learning cycle; the known model stays as it was,
     only the simulated plant changes, so FEL has to adapt."""
 
-    cycle: int = Field(ge=1, description="Learning cycle at whose start the change happens.")
+    cycle: int = Field(ge=1, le=MAX_CYCLES, description="Learning cycle at whose start the "
+                       "change happens.")
     kind: Literal["slope", "payload", "mass"] = Field(description="slope: tilt gravity (the "
         "ground) by `angle` about the world's y axis; payload: add a point mass `mass` at "
         "`frame`; mass: set the mass of the body moved by the joint of `link` to `mass` "
         "(its inertia scaled alike).")
-    angle: FiniteFloat | None = Field(None, description="Slope angle in [rad] (kind slope); "
+    angle: Angle | None = Field(None, description="Slope angle in [rad] (kind slope); "
                                       "positive tilts gravity towards +x (downhill ahead).")
-    mass: NonNegFloat | None = Field(None, description="Mass in [kg] (payload, mass).")
+    mass: NonNegFloat | None = Field(None, le=MAX_MASS, description="Mass in [kg] (payload, "
+                                     f"mass); at most {MAX_MASS:g}.")
     frame: str | None = Field(None, description="URDF link/frame carrying the payload.")
     link: str | None = Field(None, description="URDF link whose mass is set (kind mass).")
 
@@ -423,7 +665,8 @@ class SweepConfig(Strict):
 
     grid: dict[str, list[Any]] = Field(default_factory=dict, description="Dotted config paths "
                                        "and the values to try, e.g. {learning.rates.weights: "
-                                       "[0.1, 0.2]}; the product of all is run.")
+                                       "[0.1, 0.2]}; the product of all is run (at most "
+                                       f"{MAX_SWEEP_POINTS} points).")
 
 
 class SuccessConfig(Strict):
@@ -448,12 +691,15 @@ class ExperimentConfig(Strict):
     package_dirs: list[str] = Field(default_factory=list, description="Directories searched for "
                                     "package:// mesh paths of a URDF file (relative to the "
                                     "config file).")
-    gravity: FiniteFloat | list[FiniteFloat] = Field(9.8, description="Gravity in [m/s^2]: a "
-        "magnitude along the world's -z, or a 3-vector. The thesis uses 9.8.")
+    gravity: Gravity | list[Gravity] = Field(9.8, description="Gravity in [m/s^2]: a "
+        "magnitude along the world's -z, or a 3-vector. The thesis uses 9.8. Each component "
+        f"within +-{MAX_ABS_GRAVITY:g}.")
     backend: Literal["pinocchio", "casadi", "compiled"] = Field("pinocchio", description=
         "Known models: Pinocchio; CasADi symbolic expressions built from the same model; or "
         "compiled: a whole learning cycle generated to C and compiled (cached on disk).")
-    period_s: PositiveFloat = Field(description="Period T of the rhythmic motion in [s].")
+    period_s: PositiveFloat = Field(le=MAX_PERIOD_S, description="Period T of the rhythmic "
+        f"motion in [s]; at most {MAX_PERIOD_S:g}, and period_s * sim.rate_hz (the samples per "
+        f"cycle) a whole number from 2 to {MAX_STEPS_PER_CYCLE}.")
     sim: SimConfig = Field(default_factory=SimConfig, description="Simulation settings.")
     primitives: PrimitiveConfig = Field(default_factory=PrimitiveConfig,
                                         description="Defaults for every joint's RMP.")
@@ -468,8 +714,10 @@ class ExperimentConfig(Strict):
                                       "at given cycles (adaptation experiments).")
     plant: PlantConfig | None = Field(None, description="The simulated robot, when it differs "
                                       "from the known model; default plant = model.")
-    seeds: int | list[Annotated[int, Field(ge=0)]] = Field(20, description="Number of seeds "
-                                                          "(0..n-1) or an explicit list.")
+    seeds: Annotated[int, Field(ge=1, le=MAX_SEEDS)] | Annotated[
+        list[Annotated[int, Field(ge=0, le=MAX_SEED)]], Field(min_length=1, max_length=MAX_SEEDS)
+    ] = Field(20, description=f"Number of seeds (0..n-1, at most {MAX_SEEDS}) or an explicit "
+              "list of distinct seeds (each 0 to 2^63 - 1).")
     sweep: SweepConfig | None = Field(None, description="Grid for feltool sweep.")
     success: SuccessConfig = Field(default_factory=SuccessConfig, description="When a seed "
                                    "counts as learned (the exit code); default: it did not "
@@ -485,15 +733,19 @@ class ExperimentConfig(Strict):
     @field_validator("seeds")
     @classmethod
     def _seeds(cls, s):
-        if isinstance(s, int) and s < 1:
-            raise ValueError("needs at least one seed")
-        if isinstance(s, list) and not s:
-            raise ValueError("needs at least one seed")
+        if isinstance(s, list):
+            repeated = sorted(x for x, n in Counter(s).items() if n > 1)
+            if repeated:
+                raise ValueError(f"seed {', '.join(map(str, repeated))} given more than once; "
+                                 "each seed runs once (a repeat would be the same run again)")
         return s
 
     def problems(self) -> list[tuple[str, str]]:
         """Checks across fields, as ``(yaml_path, message)`` pairs."""
         steps = self.period_s * self.sim.rate_hz
+        if steps > MAX_STEPS_PER_CYCLE:
+            return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle; at "
+                                 f"most {MAX_STEPS_PER_CYCLE} (feltool's limit)")]
         if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 2:
             return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle; it "
                                  "must be a whole number of at least 2")]
@@ -524,6 +776,10 @@ class ExperimentConfig(Strict):
 def read_yaml(path: Path) -> dict[str, Any]:
     """Read a YAML mapping safely (no object construction), with errors that name the file."""
     try:
+        size = Path(path).stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError([("", f"the file has {size} bytes; a config may have at most "
+                                    f"{MAX_CONFIG_BYTES} (1 MiB)")], str(path))
         text = Path(path).read_text()
     except FileNotFoundError:
         raise ConfigError([("", "config file not found")], str(path)) from None
@@ -536,13 +792,15 @@ def read_yaml(path: Path) -> dict[str, Any]:
         raise ConfigError([("", "the file is binary (not UTF-8 text), not a YAML config")],
                           str(path))
     try:
-        data = yaml.safe_load(text)  # safe: no object construction
+        data = load_yaml(text)  # safe: no object construction, bounded depth and aliases
         duplicates = _duplicate_keys(yaml.compose(text, Loader=yaml.SafeLoader))
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         problem = getattr(exc, "problem", None) or str(exc)
         raise ConfigError([("", f"{where}not valid YAML ({problem})")], str(path)) from None
+    except YamlBoundError as exc:
+        raise ConfigError([("", f"refused: {exc}")], str(path)) from None
     if not isinstance(data, dict):
         raise ConfigError([("", "the config must be a YAML mapping of fields")], str(path))
     if duplicates:
@@ -580,9 +838,11 @@ def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any
         if not parts:
             raise ConfigError([(item, "an override needs a field path before '='")], "--set")
         try:
-            value = yaml.safe_load(raw)
+            value = load_yaml(raw)
         except yaml.YAMLError:
             value = raw
+        except YamlBoundError as exc:
+            raise ConfigError([(key.strip(), f"refused: {exc}")], "--set") from None
         node = data
         for i, part in enumerate(parts[:-1]):
             child = node.get(part)
@@ -607,6 +867,9 @@ def _loc(loc: tuple) -> str:
     return ".".join(str(p) for p in loc if not (isinstance(p, str) and _BRANCH.match(p)))
 
 
+_SCALAR_TYPES = {"int_type", "int_parsing", "float_type", "float_parsing", "string_type"}
+
+
 def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
     problems = []
     for err in exc.errors():
@@ -616,8 +879,23 @@ def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
             msg = "unknown field (check the spelling; see docs/configuration.md)"
         elif err["type"] == "missing":
             msg = "required field is missing"
+        elif err["type"] in ("less_than_equal", "too_long") and \
+                not isinstance(err.get("input"), dict):
+            # feltool's upper bounds (feltool/bounds.py), stated with the value given
+            bound = err.get("ctx", {})
+            limit = bound.get("le", bound.get("max_length"))
+            what = {"less_than_equal": "above", "too_long": "longer than"}[err["type"]]
+            given = f"{len(err['input'])} items" if err["type"] == "too_long" else \
+                str(err["input"])
+            limit = f"{limit:g}" if isinstance(limit, float) else limit
+            msg = f"{given} is {what} the limit {limit} (see docs/configuration.md)"
         problems.append((_loc(loc), msg))
-    # A union (e.g. seeds: int | list) reports one error per branch; keep one per path.
+    # A union (e.g. seeds: int | list) reports one error per branch: a list given where the
+    # other branch wants a number is no news when the list branch says what is wrong.
+    paths = [p for p, _ in problems]
+    problems = [(p, m) for (p, m), err in zip(problems, exc.errors())
+                if not (err["type"] in _SCALAR_TYPES and isinstance(err.get("input"), list | dict)
+                        and any(q != p and q.startswith(p + ".") for q in paths))]
     seen, unique = set(), []
     for p in problems:
         if p[0] not in seen:

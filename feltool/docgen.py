@@ -25,6 +25,13 @@ overridden on the command line: `feltool run CONFIG --set joints.elbow.gains.kp=
 
 Units: SI throughout, angles in radians.
 
+Every number is bounded by a limit a real experiment stays far inside (stated in each field's
+description, from `feltool/bounds.py`); a value beyond it is an error naming the field and the
+limit. NaN and infinity are never accepted, and a YAML boolean (`yes`, `no`, `on`, `true`) is not
+a number. A config file may have at most 1 MiB, 40 levels of nesting and 100,000 values after
+its aliases are expanded; a run whose memory estimate exceeds 80 % of the available memory is
+refused before it starts (see [scaling](scaling.md)).
+
 """
 
 

@@ -14,19 +14,21 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from feltool.config import ExperimentConfig, apply_overrides, parse_config, read_yaml
+from feltool.config import ExperimentConfig, JointConfig, apply_overrides, parse_config, read_yaml
 from feltool.control import FeedbackLaw, FrameAngle
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.events import check_events
 from feltool.fel import FeedbackErrorLearner
 from feltool.hybrid import Allocation, HybridLoop, Walker
+from feltool.memory import check_memory
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, sine_demo
 from feltool.robot import Robot, data_dir, load_robot
 from feltool.seed import CycleOutcome, SeedResult, run_seed, stabilization_errors  # noqa: F401
 from feltool.simulate import ClosedLoop, Limits
+from feltool.walker_config import physical_loop, walker_model
 
 
 @dataclass
@@ -147,8 +149,15 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
                                package_dirs=[str(d) for d in dirs])
         except RobotError as exc:
             problems.append(("robot", str(exc)))
+    named = None
+    if robot is not None and cfg is not None and cfg.walking is not None and \
+            cfg.walking.physical:
+        wm, walker_problems = walker_model(cfg.walking, robot)
+        problems += walker_problems
+        if wm is not None:
+            named = wm.robot  # the names include the base joints
     if robot is not None:
-        problems += _name_problems(raw, robot)
+        problems += _name_problems(raw, named or robot)
         if cfg is not None and cfg.plant is not None:
             problems += plant_problems(cfg.plant, robot, source.parent if source else None)
     if problems:
@@ -178,8 +187,15 @@ def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
             problems.append((f"joints.{name}", f"robot '{robot.name}' has no joint '{name}' "
                                                f"(its joints: {listing})"))
             continue
-        if robot.model.joints[robot.joint_id(name)].nv != 1:
+        joint = robot.model.joints[robot.joint_id(name)]
+        role = jc.get("role") if isinstance(jc, dict) else None
+        if joint.nv != 1:
             problems.append((f"joints.{name}", "feltool roles need a one-degree-of-freedom joint"))
+        elif joint.nq != 1 and role != "locked":
+            problems.append((f"joints.{name}", f"joint '{name}' is continuous (an unbounded "
+                             "revolute joint, stored by Pinocchio as cos/sin: two coordinates); "
+                             f"a '{role}' role needs a revolute or prismatic joint: give it "
+                             "type revolute with limits in the URDF, or role: locked"))
         target = jc.get("target") if isinstance(jc, dict) else None
         frame = target.get("frame") if isinstance(target, dict) else None
         if isinstance(frame, str) and not robot.model.existFrame(frame):
@@ -218,9 +234,16 @@ def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
 def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experiment:
     """Build an :class:`Experiment` from a raw config mapping."""
     cfg, full_robot = validate(raw, source)
+    wm = None
+    if cfg.walking is not None and cfg.walking.physical:
+        wm, _ = walker_model(cfg.walking, full_robot)
+        full_robot = wm.robot
+        _physical_joints(cfg, wm, source)
     locked = {n: 0.0 for n in full_robot.joint_names if n not in cfg.joints}
     locked.update({n: jc.posture for n, jc in cfg.joints.items() if jc.role == "locked"})
     robot = reduce_robot(full_robot, locked)
+    # Before the per-sample arrays exist: refuse a run the machine cannot hold.
+    check_memory(cfg, robot.joint_names, robot.model.njoints - 1, str(source) if source else None)
     robot.set_gravity(cfg.gravity)
     dynamics = make_dynamics(robot.model, "casadi" if cfg.backend == "casadi" else "pinocchio")
     nv = robot.model.nv
@@ -228,15 +251,18 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     for name in robot.joint_names:
         joints[robot.v_index(name)] = name
     if robot.model.nq != nv:
+        multi = [n for n in robot.joint_names if robot.model.joints[robot.joint_id(n)].nq != 1]
         raise ConfigError([("robot", "after locking the unconfigured joints the model still has "
-                                     "joints with more than one coordinate; lock them or list "
-                                     "them under joints")], str(source) if source else None)
+                                     "joints with more than one coordinate ("
+                                     + ", ".join(multi) + "); lock them")],
+                          str(source) if source else None)
 
     # Primitives: fit demos (eq. 2.4); learned joints get their random start per seed.
     dt, T = cfg.dt, cfg.period_s
     prims: dict[int, RhythmicPrimitive] = {}
     thetas: dict[int, np.ndarray] = {}
     fine_t = np.linspace(0.0, T, 2000, endpoint=False)
+    fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for i, name in enumerate(joints):
         jc = cfg.joints[name]
         settings = cfg.primitives.model_dump()
@@ -247,11 +273,19 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         prims[i] = prim
         if jc.demo is not None:
             d = jc.demo
-            q, v, a = sine_demo(d.mean, d.amplitude, T, d.phase, fine_t, d.harmonics, d.delay)
+            q, v, a = _demo_trajectory(d, T, fine_t)
             thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=d.mean)
+            if jc.follow_demo:
+                fixed[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
         else:
             thetas[i] = np.zeros(prim.n_params)
-    primitives = PrimitiveSet(prims, nv)
+    primitives = PrimitiveSet(prims, nv, fixed)
+    if fixed and (cfg.backend == "compiled" or cfg.learning.sensitivity == "casadi"
+                  or cfg.learning.step == "per_step"):
+        raise ConfigError([(f"joints.{joints[i]}.follow_demo", "needs backend pinocchio or "
+                            "casadi, learning.sensitivity exact or finite_difference and "
+                            "learning.step per_cycle") for i in fixed],
+                          str(source) if source else None)
     theta_demo = np.concatenate([thetas[i] for i in range(nv)])
 
     # Feedback laws.
@@ -366,9 +400,18 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         if model_learner is not None:
             raise ConfigError([("learning.model", "model learning is not supported for "
                                                   "walking/actuated robots yet")], src)
-        hybrid = HybridLoop(plant, law, _allocation(cfg, robot, joints, src),
-                            _walker(cfg, robot, joints, src), actuated, dt, cfg.sim.substeps,
-                            cfg.sim.integrator, error_mask)
+        if wm is not None:
+            if cfg.actuation is not None:
+                raise ConfigError([("actuation", "a physical walker's motors are its URDF "
+                                                 "joints (every joint but the base's); remove "
+                                                 "the actuation block")], src)
+            if cfg.plant is not None:
+                raise ConfigError([("plant", "not supported for a physical walker yet")], src)
+            hybrid = physical_loop(cfg, wm, law, dynamics, joints, error_mask, src)
+        else:
+            hybrid = HybridLoop(plant, law, _allocation(cfg, robot, joints, src),
+                                _walker(cfg, robot, joints, src), actuated, dt,
+                                cfg.sim.substeps, cfg.sim.integrator, error_mask)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
                      init, source, hybrid, plant, model_learner)
     if L.sensitivity == "casadi" and learner.n_learned:
@@ -481,6 +524,27 @@ def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
                   w.fall.max_abs if w.fall else np.inf, free, foot, placement)
 
 
+def _demo_trajectory(d, T: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A demonstration's position [rad], velocity [rad/s] and acceleration [rad/s^2] at times
+    ``t`` [s] of a period ``T`` [s]."""
+    return sine_demo(d.mean, d.amplitude, T, d.phase, t, d.harmonics, d.delay)
+
+
+def _physical_joints(cfg: ExperimentConfig, wm, source: Path | None) -> None:
+    """A physical walker's base joints default to passive; no joint may be locked (the walker
+    model's frames and relabelling are of the whole robot)."""
+    for name in wm.base:
+        if name not in cfg.joints:
+            cfg.joints[name] = JointConfig.model_validate(
+                {"role": "passive", "demo": {"kind": "sine", "amplitude": 0.0}})
+    locked = [n for n in wm.robot.joint_names
+              if n not in cfg.joints or cfg.joints[n].role == "locked"]
+    if locked:
+        raise ConfigError([("joints", "a physical walker cannot lock joints; configure "
+                                      + ", ".join(locked) + " (e.g. role: passive)")],
+                          str(source) if source else None)
+
+
 def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actuated: np.ndarray,
                    source: Path | None) -> ModelLearner | None:
     """The classic-FEL learner of ``learning.model`` (None when absent)."""
@@ -536,6 +600,8 @@ def reduce_robot(robot: Robot, locked: dict[str, float]) -> Robot:
         joint = robot.model.joints[jid]
         if joint.nq == 1:
             q_ref[joint.idx_q] = posture
+        elif joint.nq == 2 and joint.nv == 1:  # continuous: (cos, sin) of the angle
+            q_ref[joint.idx_q:joint.idx_q + 2] = np.cos(posture), np.sin(posture)
     model = pin.buildReducedModel(robot.model, sorted(ids), q_ref)
     if model.nv == 0:
         raise ConfigError([("joints", "every joint is locked; nothing moves")])

@@ -77,11 +77,13 @@ class FeedbackErrorLearner:
         return len(self.learned)
 
     def jacobian(self, dynamics: Dynamics, theta: np.ndarray, Qd: np.ndarray, Vd: np.ndarray,
-                 Ad: np.ndarray, derivatives: tuple | None = None) -> np.ndarray:
+                 Ad: np.ndarray, derivatives: tuple | None = None,
+                 samples: np.ndarray | None = None) -> np.ndarray:
         """:math:`J_k = \\partial u_{ff}^k / \\partial\\theta_{learned}`, shape ``(n, nv, P)``.
 
         ``derivatives``: ``(Dq, Dv, M)`` of the inverse model along ``Qd, Vd, Ad`` if already
-        computed (see :func:`feedforward_and_derivatives`).
+        computed (see :func:`feedforward_and_derivatives`). ``samples``: the RMP sample of each
+        row of ``Qd`` (a walker whose phase restarts at touchdown), default ``0 .. n-1``.
         """
         n, nv = Qd.shape
         J = np.zeros((n, nv, self.n_learned))
@@ -99,6 +101,8 @@ class FeedbackErrorLearner:
         for i, cols, prim, rows in self._blocks:
             sel = np.isin(rows, self.learned)
             Xq, Xv, Xa = prim.Xq[:, sel], prim.Xv[:, sel], prim.Xa[:, sel]
+            if samples is not None:
+                Xq, Xv, Xa = Xq[samples], Xv[samples], Xa[samples]
             J[:, :, cols] = (Dq[:, :, i, None] * Xq[:, None, :] + Dv[:, :, i, None] * Xv[:, None, :]
                              + M[:, :, i, None] * Xa[:, None, :])
         return J

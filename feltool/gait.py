@@ -60,6 +60,8 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
     eig = eig[order]
     stride = float(sum(abs(fx_) for _, _, fx_ in log.impacts))
     T = exp.config.period_s
+    if getattr(log, "steps", None) is not None and exp.config.walking.phase != "clock":
+        T = float(sum(st.duration for st in log.steps[:len(log.impacts)]))  # touchdown phase
     return {
         "fixed_point_found": residual < 1e-6,
         "fixed_point_residual": residual,

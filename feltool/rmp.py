@@ -224,11 +224,15 @@ class PrimitiveSet:
     Args:
         primitives: ``{joint velocity index: RhythmicPrimitive}`` for every joint of the model.
         nv: Number of velocity coordinates of the model.
+        fixed: ``{joint velocity index: (q, v, a)}``: joints whose forward trajectory is given
+            sample by sample (``follow_demo``, never learned) instead of by their RMP.
     """
 
-    def __init__(self, primitives: dict[int, RhythmicPrimitive], nv: int):
+    def __init__(self, primitives: dict[int, RhythmicPrimitive], nv: int,
+                 fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None):
         self.primitives = dict(sorted(primitives.items()))
         self.nv = nv
+        self.fixed = dict(fixed or {})
         self.n_steps = next(iter(self.primitives.values())).n_steps
         self.slices: dict[int, slice] = {}
         start = 0
@@ -242,6 +246,9 @@ class PrimitiveSet:
         n = self.n_steps
         Q, V, A = np.zeros((n, self.nv)), np.zeros((n, self.nv)), np.zeros((n, self.nv))
         for i, prim in self.primitives.items():
+            if i in self.fixed:
+                Q[:, i], V[:, i], A[:, i] = self.fixed[i]
+                continue
             th = theta[self.slices[i]]
             Q[:, i], V[:, i], A[:, i] = prim.Xq @ th, prim.Xv @ th, prim.Xa @ th
         return Q, V, A

@@ -6,6 +6,7 @@ where it came from and the joint-name bookkeeping the rest of feltool needs.
 
 from __future__ import annotations
 
+import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,7 +14,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from feltool.bounds import MAX_URDF_BYTES, MAX_URDF_LINKS
 from feltool.errors import RobotError
+from feltool.physical import inertia_problem, mass_problem
 
 ERD_PREFIX = "example-robot-data:"
 
@@ -152,6 +155,11 @@ def load_urdf(path: Path, source: str | None = None, name: str | None = None,
     if not path.is_file():
         raise RobotError(f"URDF file not found: {path}")
     try:
+        size = path.stat().st_size
+        if size > MAX_URDF_BYTES:
+            raise RobotError(f"{path}: the file has {size} bytes; a URDF may have at most "
+                             f"{MAX_URDF_BYTES} (feltool's limit; meshes belong in their own "
+                             "files)")
         text = path.read_text()
     except UnicodeDecodeError:
         raise RobotError(f"{path}: the file is binary (not UTF-8 text), not a URDF") from None
@@ -201,6 +209,9 @@ def _check_urdf_xml(text: str, where: str, base: Path | None = None,
     links = {link.get("name"): link for link in root.findall("link")}
     if not links:
         raise RobotError(f"{where}: <robot> has no <link> elements")
+    if len(links) > MAX_URDF_LINKS:
+        raise RobotError(f"{where}: <robot> has {len(links)} links; feltool loads at most "
+                         f"{MAX_URDF_LINKS} (a real robot has a few dozen)")
     children: dict[str, list[tuple[str, str]]] = {}
     for joint in root.findall("joint"):
         jname = joint.get("name")
@@ -231,6 +242,8 @@ def _check_urdf_xml(text: str, where: str, base: Path | None = None,
                 raise RobotError(f"{where}: the joints form a cycle through <link name=\"{link}\">;"
                                  " a URDF must be a tree")
             seen.add(link)
+    _check_numbers(root, where)
+    _check_physics(root, where)
     if base is not None:
         _check_meshes(root, where, base, package_dirs or [])
 
@@ -244,8 +257,14 @@ def _check_urdf_xml(text: str, where: str, base: Path | None = None,
                              f"number: '{mass.get('value')}'") from None
 
     def body_mass(name: str) -> float:
-        """Mass of a link and everything welded to it by fixed joints."""
-        return link_mass(name) + sum(body_mass(c) for c, t in children.get(name, []) if t == "fixed")
+        """Mass of a link and everything welded to it by fixed joints (iteratively: a long
+        chain must not exhaust Python's recursion)."""
+        total, stack = 0.0, [name]
+        while stack:
+            link = stack.pop()
+            total += link_mass(link)
+            stack += [c for c, t in children.get(link, []) if t == "fixed"]
+        return total
 
     for joint in root.findall("joint"):
         if joint.get("type") in ("fixed", None):
@@ -259,23 +278,45 @@ def _check_urdf_xml(text: str, where: str, base: Path | None = None,
             )
 
 
+def _mesh_candidates(filename: str, base: Path,
+                     package_dirs: list[str]) -> list[tuple[Path, list[Path]]]:
+    """Files a mesh reference may mean, each with the folders it must stay inside."""
+    roots = [Path(base)] + [Path(d) for d in package_dirs]
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):].lstrip("/")
+        package, _, inner = rest.partition("/")
+        out = []
+        for d in map(Path, package_dirs):
+            out += [(d / rest, [d]), (d / inner, [d]), (d.parent / rest, [d.parent / package])]
+        return out
+    if filename.startswith("file://"):
+        return [(Path(filename[len("file://"):]), roots)]
+    return [(Path(base) / filename, roots)]
+
+
+def _inside(path: Path, roots: list[Path]) -> bool:
+    """Whether ``path`` lies inside one of ``roots``, judged on the normalised path text (so a
+    ``../`` cannot climb out, while a symbolic link inside a root stays allowed)."""
+    target = os.path.normpath(os.path.abspath(path))
+    for root in roots:
+        top = os.path.normpath(os.path.abspath(root))
+        if target == top or target.startswith(top.rstrip(os.sep) + os.sep):
+            return True
+    return False
+
+
 def resolve_mesh(filename: str, base: Path, package_dirs: list[str]) -> Path | None:
     """The file a URDF mesh reference points to (``package://``, ``file://``, relative to the
-    URDF, or absolute), or None when it does not exist."""
-    candidates: list[Path] = []
-    if filename.startswith("package://"):
-        rest = filename[len("package://"):]
-        package, _, inner = rest.partition("/")
-        for d in package_dirs:
-            candidates += [Path(d) / rest, Path(d) / inner, Path(d).parent / rest]
-    elif filename.startswith("file://"):
-        candidates.append(Path(filename[len("file://"):]))
-    else:
-        candidates.append(base / filename)
-    return next((c for c in candidates if c.is_file()), None)
+    URDF, or absolute), or None when it does not exist or lies outside the URDF's folder and
+    the package dirs."""
+    return next((c for c, roots in _mesh_candidates(filename, base, package_dirs)
+                 if c.is_file() and _inside(c, roots)), None)
 
 
 def _check_meshes(root, where: str, base: Path, package_dirs: list[str]) -> None:
+    """Every mesh file exists and lies inside the URDF's folder or a package dir: a path that
+    climbs out (``../../elsewhere``) is refused, so a URDF cannot make feltool (or the mesh
+    loader behind the viewer) read arbitrary files."""
     for link in root.findall("link"):
         for kind in ("visual", "collision"):
             for element in link.findall(kind):
@@ -283,15 +324,106 @@ def _check_meshes(root, where: str, base: Path, package_dirs: list[str]) -> None
                 if mesh is None:
                     continue
                 filename = mesh.get("filename", "")
-                if resolve_mesh(filename, base, package_dirs) is None:
+                if resolve_mesh(filename, base, package_dirs) is not None:
+                    continue
+                if any(not _inside(c, roots)
+                       for c, roots in _mesh_candidates(filename, base, package_dirs)):
                     raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
-                                     f"'{filename}' not found (looked relative to {base} and in "
-                                     f"package dirs {package_dirs})")
+                                     f"'{filename}' lies outside the URDF's folder "
+                                     f"{os.path.abspath(base)} and the package dirs "
+                                     f"{[d for d in package_dirs if d != str(base)]}; refusing "
+                                     "to read it (put the mesh there, "
+                                     "or add its folder to package_dirs)")
+                raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
+                                 f"'{filename}' not found (looked relative to {base} and in "
+                                 f"package dirs {package_dirs})")
+
+
+#: Numeric attributes of URDF elements (inside a <link> or <joint>), each a list of numbers.
+_NUMERIC = {
+    "origin": ("xyz", "rpy"), "axis": ("xyz",), "mass": ("value",),
+    "inertia": ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"),
+    "limit": ("lower", "upper", "effort", "velocity"), "dynamics": ("damping", "friction"),
+    "safety_controller": ("soft_lower_limit", "soft_upper_limit", "k_position", "k_velocity"),
+    "calibration": ("rising", "falling"), "mimic": ("multiplier", "offset"),
+    "box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",), "mesh": ("scale",),
+}
+
+
+def _owner(element) -> str:
+    return f"<{element.tag} name=\"{element.get('name')}\">"
+
+
+def _numbers(owner, el, attr: str, where: str) -> list[float] | None:
+    text = el.get(attr)
+    if text is None:
+        return None
+    try:
+        values = [float(x) for x in text.split()]
+    except ValueError:
+        raise RobotError(f"{where}: {_owner(owner)} <{el.tag} {attr}=\"{text}\">: not a number"
+                         ) from None
+    if not all(np.isfinite(values)):
+        raise RobotError(f"{where}: {_owner(owner)} <{el.tag} {attr}=\"{text}\">: not a finite "
+                         "number (NaN and infinity are not physical values)")
+    return values
+
+
+def _check_numbers(root, where: str) -> None:
+    """Every number of every link and joint parses and is finite (urdfdom reads ``nan`` and
+    ``inf`` in some places and not others)."""
+    for owner in root.findall("link") + root.findall("joint"):
+        for el in owner.iter():
+            for attr in _NUMERIC.get(el.tag, ()):
+                _numbers(owner, el, attr, where)
+
+
+def _check_physics(root, where: str) -> None:
+    """Masses, inertias (:mod:`feltool.physical`), joint axes and limits that a real robot can
+    have; each problem names the element."""
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        mass = inertial.find("mass")
+        if mass is not None:
+            problem = mass_problem(float(mass.get("value", "0")), allow_zero=True)
+            if problem:
+                raise RobotError(f"{where}: {_owner(link)} <inertial>: {problem}")
+        inertia = inertial.find("inertia")
+        if inertia is not None:
+            values = [float(inertia.get(k, "0")) for k in _NUMERIC["inertia"]]
+            problem = inertia_problem(values)
+            if problem:
+                raise RobotError(f"{where}: {_owner(link)} <inertial> <inertia>: {problem}")
+    for joint in root.findall("joint"):
+        kind = joint.get("type")
+        axis = joint.find("axis")
+        if kind in ("revolute", "continuous", "prismatic") and axis is not None:
+            xyz = _numbers(joint, axis, "xyz", where)
+            if xyz is None or len(xyz) != 3:
+                raise RobotError(f"{where}: {_owner(joint)} <axis>: needs xyz with 3 numbers")
+            if float(np.linalg.norm(xyz)) < 1e-12:
+                raise RobotError(f"{where}: {_owner(joint)} <axis xyz=\"{axis.get('xyz')}\">: "
+                                 "the zero vector is no axis (a non-unit axis is normalised, as "
+                                 "Pinocchio does)")
+        limit = joint.find("limit")
+        if limit is not None:
+            for attr in ("effort", "velocity"):
+                value = _numbers(joint, limit, attr, where)
+                if value is not None and value[0] < 0:
+                    raise RobotError(f"{where}: {_owner(joint)} <limit {attr}=\""
+                                     f"{limit.get(attr)}\">: must be at least 0 (0 = no limit)")
 
 
 def _subtree_has_mass(name, children, link_mass) -> bool:
-    return any(link_mass(c) > 0 or _subtree_has_mass(c, children, link_mass)
-               for c, _ in children.get(name, []))
+    stack = [c for c, _ in children.get(name, [])]
+    while stack:
+        link = stack.pop()
+        if link_mass(link) > 0:
+            return True
+        stack += [c for c, _ in children.get(link, [])]
+    return False
 
 
 def _load_erd(name: str, source: str) -> Robot:
@@ -313,7 +445,21 @@ def _load_erd(name: str, source: str) -> Robot:
     robot = Robot(name=name, model=wrapper.model, source=source, urdf_path=urdf,
                   package_dirs=[str(urdf.parent)] if urdf else [])
     robot._visual_model = wrapper.visual_model
+    _check_model_numbers(robot.model, f"example-robot-data robot '{name}'")
     return robot
+
+
+def _check_model_numbers(model: pin.Model, where: str) -> None:
+    """Finite, non-negative masses and finite inertias of a model built elsewhere (the
+    example-robot-data robots are taken as shipped: several of them, e.g. go1 and pr2, have
+    inertias that violate the triangle inequality, which URDF files given by path may not)."""
+    for jid in range(1, model.njoints):
+        inertia = model.inertias[jid]
+        problem = mass_problem(float(inertia.mass), allow_zero=True)
+        if problem is None and not np.all(np.isfinite(inertia.inertia)):
+            problem = "its rotational inertia has an entry that is not a finite number"
+        if problem:
+            raise RobotError(f"{where}: the body moved by joint '{model.names[jid]}': {problem}")
 
 
 def describe(robot: Robot) -> dict:

@@ -27,6 +27,7 @@ from feltool.config import apply_overrides, config_to_yaml
 from feltool.errors import InputError
 from feltool.executors import Task, inline, make_executor, run_task
 from feltool.experiment import Experiment, SeedResult, build_experiment, stabilization_errors
+from feltool.memory import check_memory
 from feltool.rundir import atomic_write, load_npz, save_npz, write_json, write_metrics
 from feltool.runstate import RunLock, read_meta, refuse_existing, set_state
 
@@ -77,6 +78,10 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
     cycles = cycles or cfg.sim.cycles
     if not resume:
         refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")
+    parallel = min(workers or os.cpu_count() or 1, len(seeds))
+    if parallel > 1:  # building checked one process; the pool runs this many at once
+        check_memory(cfg, exp.robot.joint_names, exp.robot.model.njoints - 1,
+                     str(exp.source) if exp.source else None, processes=parallel)
     with RunLock(out_dir):
         if resume:
             _check_resumable(out_dir, exp, seeds, cycles)
@@ -414,4 +419,18 @@ def aggregate(seeds: list[dict[str, Any]]) -> dict[str, Any]:
         "fb_final_mean": float(np.mean([s["fb_final"] for s in ok])) if ok else None,
         "fb_ratio_max": max(ratios) if ratios else None,
         "steps_per_s_mean": float(np.mean(steps)) if steps else None,
+        **_walking_aggregate(seeds),
     }
+
+
+def _walking_aggregate(seeds: list[dict[str, Any]]) -> dict[str, Any]:
+    """Physical walkers: seeds that walked every step, and the not-walking kinds' counts."""
+    walks = [s["walking"] for s in seeds if isinstance(s.get("walking"), dict)]
+    if not walks:
+        return {}
+    kinds: dict[str, int] = {}
+    for w in walks:
+        if w["not_walking"]:
+            kinds[w["not_walking"]] = kinds.get(w["not_walking"], 0) + 1
+    return {"n_walked": sum(bool(w["walked"]) for w in walks),
+            "n_not_walking": sum(kinds.values()), "not_walking": kinds}

@@ -56,6 +56,7 @@ class CycleOutcome:
         impacts: ``(step, by_guard, swing-foot x [m])`` of each impact (walkers).
         theta_m_next: The inverse-model correction after the cycle (``learning.model``), else
             None.
+        contact: A physical walker's contact metrics of the cycle (:func:`contact_metrics`).
     """
 
     theta_next: np.ndarray
@@ -73,6 +74,7 @@ class CycleOutcome:
     impacts: list = field(default_factory=list)
     theta_m_next: np.ndarray | None = None
     limit_hits: tuple[np.ndarray, np.ndarray] | None = None
+    contact: dict | None = None
 
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
@@ -119,12 +121,19 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     t0 = time.perf_counter()
     plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
     hits = [np.zeros(len(exp.joints), int), np.zeros(len(exp.joints), int)]
-    checked = False
+    checked, contacts, out, cycle = False, [], None, start - 1
     if saved is not None:  # counters of the cycles before the checkpoint
         impacts.update(saved.get("impacts", {}))
+        contacts = list(saved.get("contacts", []))
         if saved.get("limit_hits") is not None:
             checked = True
             hits = [np.array(h, int) for h in saved["limit_hits"]]
+
+    def save(at_cycle: int, wall: float) -> None:
+        _save_checkpoint(checkpoint, at_cycle, theta, q, v, rows, history, traces, wall,
+                         run_cycle, (theta_m, model_history) if model is not None else None,
+                         {"impacts": impacts, "contacts": contacts,
+                          "limit_hits": [h.tolist() for h in hits] if checked else None})
     for cycle in range(start, cycles + 1):
         if cycle > start:
             plant = _plant_for_cycle(exp, cycle) or plant
@@ -144,6 +153,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             theta_m = out.theta_m_next
             model_history.append(theta_m)
         rows.append(row)
+        if out.contact is not None:
+            contacts.append(out.contact)
         if cycle == 1:
             traces.update(_trace("first", *out.trace()))
         last = out
@@ -155,11 +166,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         if on_cycle is not None:
             on_cycle(cycle, *out.trace(), row["fb_abs_mean_error"])
         if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
-            _save_checkpoint(checkpoint, cycle, theta, q, v, rows, history, traces,
-                             wall_before + time.perf_counter() - t0, run_cycle,
-                             (theta_m, model_history) if model is not None else None,
-                             {"impacts": impacts,
-                              "limit_hits": [h.tolist() for h in hits] if checked else None})
+            save(cycle, wall_before + time.perf_counter() - t0)
             if stop_requested() and cycle < cycles:
                 raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
     wall = wall_before + time.perf_counter() - t0
@@ -168,15 +175,14 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     steps = n * (len(rows) + (1 if reason else 0))
     if checkpoint is not None:  # the final state stays, so that a resume may add cycles
         if reason is None and rows and rows[-1]["cycle"] % checkpoint.every:
-            _save_checkpoint(checkpoint, rows[-1]["cycle"], theta, q, v, rows, history, traces,
-                             wall, run_cycle,
-                             (theta_m, model_history) if model is not None else None,
-                             {"impacts": impacts,
-                              "limit_hits": [h.tolist() for h in hits] if checked else None})
+            save(rows[-1]["cycle"], wall)
         elif reason is not None:
             checkpoint.clear()
     summary = _seed_summary(exp, seed, rows, reason, wall, steps)
     summary["cycles_planned"] = cycles
+    if cfg.walking is not None and cfg.walking.physical:
+        failed = out.contact if reason and out is not None else None
+        summary["walking"] = walking_summary(exp, rows, contacts, failed, reason)
     summary["limits"] = ({"joint_limit_steps": _nonzero(exp.joints, hits[0]),
                           "torque_limit_steps": _nonzero(exp.joints, hits[1])}
                          if checked else "not checked")
@@ -307,11 +313,87 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
     theta_next = theta
     if log.fall is None and exp.learner.n_learned:
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
-        J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs)
+        J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs,
+                                 samples=getattr(log, "phase_index", None))
         theta_next = exp.learner.step(theta, J, _impact_masked(exp, log))
     out = _outcome(exp, log, log.Qd, theta_next)
     out.fall, out.impacts = log.fall, list(log.impacts)
+    if getattr(log, "steps", None) is not None:
+        out.contact = contact_metrics(log, exp)
+        out.limit_hits = (np.zeros(len(exp.joints), int), _motor_hits(exp, log))
     return out
+
+
+def contact_metrics(log, exp: Experiment) -> dict[str, float]:
+    """Per cycle of a physical walker: the stance foot's smallest normal force [N] and largest
+    friction ratio, the swing foot's lowest clearance [m], the largest touchdown impulse ratio,
+    the kinetic energy lost at the touchdowns [J], the mean step length [m], the walked
+    distance [m], the cycle's duration [s], the motors' absolute mechanical work [J], the RMS
+    of the stabilized quantities' errors from their targets [rad]; also the kind of contact
+    violation (``not_walking``), if any."""
+    steps = log.steps
+    dt = exp.config.dt
+    motors = exp.hybrid.walker.motor_v
+    work = float(np.abs(log.tau * log.v[:, motors]).sum() * dt) if len(log.q) else 0.0
+    law = exp.law
+    stab = law.stabilizing
+    err = wrap(law.quantity(log.q)[:, stab] - law.targets[stab]) if len(log.q) else np.zeros(1)
+    done = [s for s in steps if np.isfinite(s.length)]
+    finite = lambda xs: [x for x in xs if np.isfinite(x)]  # noqa: E731
+    clear = finite([s.min_clearance for s in steps])
+    return {
+        "min_normal_force": float(min(s.min_normal_force for s in steps)),
+        "max_friction_ratio": float(max(s.max_friction_ratio for s in steps)),
+        "min_clearance": float(min(clear)) if clear else float("nan"),
+        "max_impulse_ratio": float(max((s.impulse_ratio for s in done), default=float("nan"))),
+        "impact_energy_lost": float(sum(s.energy_lost for s in done)),
+        "step_length": float(np.mean([s.length for s in done])) if done else float("nan"),
+        "distance": float(sum(s.length for s in done)),
+        "steps": len(done),
+        "duration": len(log.q) * dt,
+        "work": work,
+        "stabilized_rms": float(np.sqrt(np.mean(err**2))) if err.size else 0.0,
+        "not_walking": log.not_walking,
+    }
+
+
+def walking_summary(exp: Experiment, rows: list, contacts: list[dict], failed: dict | None,
+                    reason: str | None) -> dict[str, Any]:
+    """A physical walker's seed: whether it walked every step, the kind of contact violation
+    that stopped it (``not_walking``), steps, distance [m], mean step length [m], speed [m/s],
+    cost of transport (motors' absolute work / (m g distance)) and the stabilized quantities'
+    RMS error [rad] over the last cycle, the contact extremes over all cycles."""
+    walked = reason is None
+    kind = failed.get("not_walking") if failed else None
+    out: dict[str, Any] = {"walked": walked, "not_walking": kind,
+                           "reason": reason if kind else None}
+    if contacts:
+        dist = sum(c["distance"] for c in contacts)
+        dur = sum(c["duration"] for c in contacts)
+        last = contacts[-1]
+        mg = exp.robot.total_mass * float(np.linalg.norm(exp.robot.model.gravity.linear))
+        out.update({
+            "steps": int(sum(c["steps"] for c in contacts)), "distance_m": dist,
+            "step_length_m": last["step_length"],
+            "speed_m_per_s": last["distance"] / last["duration"] if last["duration"] else None,
+            "cost_of_transport": (last["work"] / (mg * last["distance"])
+                                  if last["distance"] > 0 else None),
+            "stabilized_rms_last_rad": last["stabilized_rms"],
+            "min_normal_force_N": min(c["min_normal_force"] for c in contacts),
+            "max_friction_ratio": max(c["max_friction_ratio"] for c in contacts),
+            "min_clearance_m": min(c["min_clearance"] for c in contacts),
+            "max_impulse_ratio": max(c["max_impulse_ratio"] for c in contacts),
+            "walk_time_s": dur,
+        })
+    return out
+
+
+def _motor_hits(exp: Experiment, log) -> np.ndarray:
+    """Steps over the effort limit per joint (the physical walker's motors are joints)."""
+    hits = np.zeros(len(exp.joints), int)
+    if log.torque_hits is not None:
+        hits[exp.hybrid.walker.motor_v] = log.torque_hits
+    return hits
 
 
 def _impact_masked(exp: Experiment, log) -> np.ndarray:
@@ -488,6 +570,10 @@ def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
     for i, name in enumerate(exp.joints):
         row[f"track_err_rms_{name}"] = float(rms[i])
     row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
+    if out.contact is not None:
+        for key in ("min_normal_force", "max_friction_ratio", "min_clearance",
+                    "max_impulse_ratio", "impact_energy_lost", "step_length", "distance"):
+            row[key] = out.contact[key]
     return row
 
 

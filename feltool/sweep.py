@@ -20,12 +20,14 @@ import csv
 import io
 import itertools
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
+from feltool.bounds import MAX_SWEEP_POINTS
 from feltool.checkpoint import Interrupted, remove_empty
 from feltool.config import apply_overrides, read_yaml
 from feltool.errors import ConfigError, InputError
@@ -34,6 +36,7 @@ from feltool.experiment import build_experiment, resolve_config_path
 from feltool.rundir import atomic_write, write_json
 from feltool.runner import CHECKPOINT_EVERY, execute, load_seed_result, save_seed_result, write_results
 from feltool.runstate import RunLock, refuse_existing, set_state
+from feltool.safe_yaml import YamlBoundError, load_yaml
 
 
 def parse_grid(specs: list[str]) -> dict[str, list]:
@@ -44,8 +47,23 @@ def parse_grid(specs: list[str]) -> dict[str, list]:
         key = key.strip()
         if not sep or not key or not values.strip():
             raise InputError(f"--grid: cannot read '{spec}'; use a.b.c=V1,V2,...")
-        grid[key] = [yaml.safe_load(v.strip()) for v in values.split(",")]
+        try:
+            grid[key] = [load_yaml(v.strip()) for v in values.split(",")]
+        except (yaml.YAMLError, YamlBoundError) as exc:
+            raise InputError(f"--grid: cannot read '{spec}' ({exc})") from None
     return grid
+
+
+def check_grid_size(grid: Any, source: str | None = None) -> None:
+    """A grid is a mapping of dotted paths to lists, with at most
+    :data:`~feltool.bounds.MAX_SWEEP_POINTS` points (counted before any is built)."""
+    if not isinstance(grid, dict) or not all(isinstance(v, list) for v in grid.values()):
+        raise ConfigError([("sweep.grid", "must map dotted config paths to lists of values")],
+                          source)
+    count = math.prod(len(v) for v in grid.values())
+    if count > MAX_SWEEP_POINTS:
+        raise ConfigError([("sweep.grid", f"{count} points; a sweep may have at most "
+                                          f"{MAX_SWEEP_POINTS}")], source)
 
 
 def grid_points(grid: dict[str, list]) -> list[dict[str, Any]]:
@@ -92,8 +110,12 @@ def _new_sweep(config, grid, seeds, cycles) -> dict[str, Any]:
     source = resolve_config_path(config)
     raw = read_yaml(source)
     block = raw.pop("sweep", None) or {}
+    if not isinstance(block, dict) or not isinstance(block.get("grid") or {}, dict):
+        raise ConfigError([("sweep", "must be a mapping with a grid: {a.b: [1, 2]}")],
+                          str(source))
     full_grid = dict(block.get("grid") or {})
     full_grid.update(grid or {})
+    check_grid_size(full_grid, str(source))
     if not full_grid:
         raise ConfigError([("sweep.grid", "a sweep needs a grid: --grid a.b=1,2 or a "
                                           "sweep: {grid: {a.b: [1, 2]}} block")], str(source))

@@ -48,3 +48,103 @@ def test_a_bad_input_as_a_user_sees_it(tmp_path):
     res = feltool("run", str(CASES[0]), "--out", str(tmp_path / "x"))
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert res.stderr.startswith("feltool: error: ")
+
+
+# -- cases that are made at test time (too big to keep) or come from the command line -----------
+
+STANDARD = Path(__file__).resolve().parent.parent / "configs" / "two_link_standard.yaml"
+
+
+def _run(args, capsys):
+    code = main(args)
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err + captured.out
+    return code, captured.err
+
+
+def test_a_giant_config_file_is_refused_before_it_is_parsed(tmp_path, capsys):
+    big = tmp_path / "giant.yaml"
+    big.write_text(STANDARD.read_text() + "description: " + "x" * (2 << 20) + "\n")
+    code, err = _run(["run", str(big), "--out", str(tmp_path / "run"), "--no-progress"], capsys)
+    assert code == 2 and "a config may have at most 1048576" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("seeds, needle", [
+    ("0-1000000000", "'0-1000000000' is 1000000001 seeds; at most 100000"),
+    ("0,0,1", "seed 0 given more than once"),
+    ("0-5,3", "seed 3 given more than once"),
+    ("99999999999999999999", "a seed may be at most 9223372036854775807"),
+])
+def test_bad_seed_lists_on_the_command_line(seeds, needle, tmp_path, capsys):
+    code, err = _run(["run", str(STANDARD), "--seeds", seeds, "--out", str(tmp_path / "run"),
+                      "--no-progress"], capsys)
+    assert code == 2 and needle in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("override, needle", [
+    ("sweep={grid: {a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1], b: [*a, *a, *a, *a, *a, *a, *a, *a, "
+     "*a, *a], c: &c [*a, *a, *a, *a, *a, *a, *a, *a, *a, *a]}}", None),
+    ("sim.cycles=on", "sim.cycles: a boolean"),
+    ("seeds=[3, 3]", "seed 3 given more than once"),
+    ("sim.rate_hz=1e400", "sim.rate_hz"),
+])
+def test_bad_overrides_on_the_command_line(override, needle, tmp_path, capsys):
+    """--set values are YAML too and get the same bounds; a small alias use stays fine."""
+    code, err = _run(["check", str(STANDARD), "--set", override], capsys)
+    if needle is None:
+        assert code == 0, err
+    else:
+        assert code == 2 and needle in err, err
+
+
+def test_a_bomb_in_an_override_is_refused(capsys):
+    levels = ["a: &a [x, x, x, x, x, x, x, x, x]"] + [
+        f"{c}: &{c} [" + ", ".join([f"*{p}"] * 9) + "]" for p, c in zip("abcdefgh", "bcdefghi")]
+    code, err = _run(["check", str(STANDARD), "--set", "sweep={grid: {" + ", ".join(levels)
+                      + "}}"], capsys)
+    assert code == 2 and "--set: sweep: refused: more than 100000 values" in err, err
+
+
+def test_the_bundled_configs_pass_the_new_bounds(capsys):
+    for path in sorted(STANDARD.parent.glob("*.yaml")):
+        code, err = _run(["check", str(path)], capsys)
+        assert code == 0, (path, err)
+
+
+def test_a_giant_urdf_is_refused_before_it_is_read(tmp_path, capsys):
+    arm = (STANDARD.parent.parent / "robots" / "two_link_arm.urdf").read_text()
+    (tmp_path / "giant.urdf").write_text(arm.replace("<robot", "<!--" + "x" * (33 << 20)
+                                                     + "-->\n<robot", 1))
+    config = tmp_path / "giant.yaml"
+    config.write_text(STANDARD.read_text().replace("robot: two_link_arm", "robot: giant.urdf"))
+    code, err = _run(["check", str(config)], capsys)
+    assert code == 2 and "a URDF may have at most 33554432" in err, err
+
+
+def _chain_urdf(n: int, joint_type: str) -> str:
+    """A chain of n links below a massless root, the first joint revolute, the rest
+    ``joint_type``."""
+    inertial = ('<inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" '
+                'izz="1"/></inertial>')
+    links = ['<link name="l0"/>'] + [f'<link name="l{i}">{inertial}</link>' for i in range(1, n + 1)]
+    joints = [f'<joint name="j{i}" type="{"revolute" if i == 1 else joint_type}"><parent '
+              f'link="l{i - 1}"/><child link="l{i}"/><axis xyz="0 1 0"/><limit lower="-1" '
+              'upper="1" effort="1" velocity="1"/></joint>' for i in range(1, n + 1)]
+    return '<robot name="chain">' + "".join(links + joints) + "</robot>"
+
+
+def test_urdf_link_count_is_bounded_and_long_chains_within_it_load(tmp_path, capsys):
+    """Thousands of links overflowed the recursion of the checks (RecursionError) and of the
+    URDF parser behind Pinocchio (a segfault); within the bound a long chain loads."""
+    from feltool.robot import load_robot
+
+    (tmp_path / "long.urdf").write_text(_chain_urdf(5000, "revolute"))
+    code, err = _run(["inspect", str(tmp_path / "long.urdf")], capsys)
+    assert code == 2 and "has 5001 links; feltool loads at most 1000" in err, err
+    for joint_type in ("fixed", "revolute"):
+        (tmp_path / "ok.urdf").write_text(_chain_urdf(999, joint_type))
+        robot = load_robot(str(tmp_path / "ok.urdf"))
+        assert robot.model.nv == (1 if joint_type == "fixed" else 999)

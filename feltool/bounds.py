@@ -1,0 +1,49 @@
+"""Upper bounds on every input, so that a typo cannot hang feltool, overflow a float or ask for
+more memory than the machine has.
+
+The numbers are far above what a real experiment needs (the thesis runs 100 Hz, 1 s periods,
+10 basis functions, alpha_z = 25, 20 seeds) and low enough that nothing overflows or allocates
+without bound; the schema (:mod:`feltool.config`) states each one in its field's description,
+and ``docs/configuration.md`` lists them.
+"""
+
+from __future__ import annotations
+
+# -- the YAML file -------------------------------------------------------------------------------
+#: Largest config file in [bytes] (a config is a few kB; a sweep grid a few more).
+MAX_CONFIG_BYTES = 1 << 20
+#: Largest URDF file in [bytes] (the biggest of example-robot-data has 0.2 MB).
+MAX_URDF_BYTES = 32 << 20
+#: Most links of a URDF (humanoids with hands have about 100; thousands of links in a chain
+#: overflow the recursion of the URDF parser behind Pinocchio).
+MAX_URDF_LINKS = 1000
+#: Deepest nesting of mappings and lists (a config nests about 5 deep).
+MAX_YAML_DEPTH = 40
+#: Most values after expanding aliases (``*name``): an "alias bomb" expands a few lines into
+#: billions of values.
+MAX_YAML_NODES = 100_000
+
+# -- numbers of the schema -----------------------------------------------------------------------
+MAX_RATE_HZ = 100_000.0     # control rate [Hz]
+MAX_PERIOD_S = 3600.0       # period of the rhythmic motion [s]
+MAX_STEPS_PER_CYCLE = 1_000_000  # period_s * rate_hz
+MAX_CYCLES = 10_000_000     # learning cycles (also an event's cycle)
+MAX_ALPHA = 10_000.0        # alpha_z, beta_z [-]
+MAX_WIDTH = 10_000.0        # von Mises width h [-]
+MAX_AMPLITUDE = 1.0e6       # amplitude factor r [-]
+MAX_GAIN = 1.0e8            # kp [N m/rad], kd [N m s/rad]
+MAX_RATE = 1.0e6            # learning rates
+MAX_SEEDS = 100_000         # seeds of one run
+MAX_SEED = 2**63 - 1        # a seed value (int64, as metrics.csv stores it)
+MAX_ABS_GRAVITY = 1000.0    # each gravity component [m/s^2] (about 100 g)
+MAX_SWEEP_POINTS = 10_000   # points of a sweep grid
+MAX_HARMONICS = 50          # higher harmonics of a sine demo
+MAX_ANGLE = 1.0e4           # angles and positions of demos, targets, postures [rad] or [m]
+MAX_LENGTH = 1.0e3          # centre-of-mass offsets [m]
+MAX_MASS = 1.0e6            # masses of plant overrides, payloads, events [kg]
+MAX_MASS_SCALE = 1.0e6      # plant.bodies.*.mass_scale [-]
+MAX_WEIGHT_SCALE = 100.0    # learn.weight_scale [-]
+MAX_DAMPING = 1.0e6         # Levenberg-Marquardt damping [-]
+
+#: Fraction of the available memory a planned run may use (see :mod:`feltool.memory`).
+MEMORY_FRACTION = 0.8

@@ -1,0 +1,513 @@
+r"""The physical walker's closed loop: stance on a point contact, touchdown by contact, rigid impact.
+
+One step: the stance foot ("left" in stance-relative labels, the config's ``walking.stance``) is
+held on the ground by a contact constraint (:class:`feltool.contact.Contact`), the swing foot
+("right") flies. The control step's torque is held while the state is integrated (classical
+Runge-Kutta, ``sim.substeps`` sub-steps per control step). Touchdown is an event: the swing foot's
+height crossing :math:`z = 0` moving down, ahead of the stance foot and outside the scuffing
+zone, located inside the sub-step by root finding (Brent's method on the sub-step's length), not
+by the clock. At touchdown the landing foot's rigid impact (``pin.impulseDynamics``) changes the
+velocities, the legs are relabelled (the landing leg becomes "left") and the state is shifted
+so that the new stance foot is at :math:`x = 0`; the rest of the sub-step runs on (with
+``phase: touchdown`` the next control step starts at the touchdown instead).
+
+Control, in generalized coordinates :math:`(x, z, \vartheta, q_j)` of the floating base:
+the desired joint and pitch trajectories come from the RMPs; the desired base position follows
+from the stance foot's constraint (:meth:`PhysicalWalker.complete`). The wanted generalized
+force :math:`\tau_w = \mathrm{RNEA}(q_d, \dot q_d, \ddot q_d) + u_{fb}` (eq. 3.1 plus feedback)
+is mapped onto the motors :math:`B` (every non-base joint) by the inertia-weighted allocation in
+the metric of the constrained system,
+
+.. math::
+
+    u = (B^\top W B)^{-1} B^\top W \tau_w,\qquad
+    W = M^{-1} - M^{-1}J_c^\top (J_c M^{-1} J_c^\top)^{-1} J_c M^{-1},
+
+the motor torques whose constrained accelerations are closest, in the kinetic-energy metric, to
+those :math:`\tau_w` would produce with the foot held.
+
+Contact physics is checked all along (:class:`ContactChecks`); a violation ends the cycle like a
+fall, with the reason: the walker is then *not walking*.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+from scipy.optimize import brentq
+
+from feltool.contact import Contact
+from feltool.control import FeedbackLaw
+from feltool.dynamics import Dynamics
+from feltool.errors import RobotError
+from feltool.walker_model import WalkerModel
+
+
+@dataclass
+class ContactChecks:
+    """What a physical step must satisfy.
+
+    Attributes:
+        friction: Coulomb coefficient :math:`\\mu` [-]: :math:`|F_x|/F_z \\le \\mu` in stance and
+            :math:`|I_x|/I_z \\le \\mu` at touchdown.
+        normal_force_min: The stance foot's normal force must stay at least this, in [N].
+        scuff_exempt: The swing foot may be below the ground within this horizontal distance of
+            the stance foot, in [m].
+        effort: Motor effort limits ``(k,)`` in [N m] (inf: none).
+        torques: ``report`` (a motor torque over its limit is not walking), ``saturate`` (clip
+            it, count the steps), ``ignore``.
+        clearance_tol: How far the swing foot may graze below the ground outside the scuffing
+            zone (e.g. the trailing foot just after lift-off), in [m].
+    """
+
+    friction: float = 0.7
+    normal_force_min: float = 0.0
+    scuff_exempt: float = 0.0
+    effort: np.ndarray | None = None
+    torques: str = "report"
+    clearance_tol: float = 1e-3
+
+
+@dataclass
+class StepStats:
+    """One step's contact physics (from its take-off to its touchdown).
+
+    Attributes:
+        min_normal_force: Smallest stance normal force :math:`F_z` [N].
+        max_friction_ratio: Largest :math:`|F_x|/F_z` [-].
+        min_clearance: Lowest swing-foot height outside the scuffing zone [m].
+        max_torque: Largest |motor torque| [N m].
+        impulse: Touchdown impulse ``(I_x, I_z)`` [N s] (NaN until touchdown).
+        impulse_ratio: :math:`|I_x|/I_z` [-].
+        trailing_vz: The trailing foot's vertical velocity just after the impact [m/s].
+        energy_lost: Kinetic energy lost at the impact [J].
+        length: Touchdown position of the swing foot ahead of the stance foot [m].
+        duration: Step duration [s].
+        touchdown_height: The swing foot's height at the located touchdown [m].
+    """
+
+    min_normal_force: float = np.inf
+    max_friction_ratio: float = 0.0
+    min_clearance: float = np.inf
+    max_torque: float = 0.0
+    impulse: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    impulse_ratio: float = np.nan
+    trailing_vz: float = np.nan
+    energy_lost: float = np.nan
+    length: float = np.nan
+    duration: float = 0.0
+    touchdown_height: float = np.nan
+
+
+class NotWalking(Exception):
+    """Contact physics violated: the reason, in words, and its kind (``normal_force``,
+    ``friction``, ``clearance``, ``touchdown``, ``impulse``, ``lift_off``, ``torque``)."""
+
+    def __init__(self, message: str, kind: str):
+        super().__init__(message)
+        self.kind = kind
+
+
+class PhysicalWalker:
+    """A walker on a floating base with point feet: its contact, checks, motors and fall check.
+
+    Args:
+        walker: The walker model.
+        checks: The contact checks.
+        steps_per_cycle: Touchdowns per learning cycle.
+        phase: ``clock`` (the RMPs run on time), ``touchdown`` (their phase restarts at every
+            touchdown; a cycle lasts ``steps_per_cycle`` steps) or ``mechanical`` (as touchdown,
+            the phase within a step following the centre of mass's horizontal position over the
+            stance foot, :meth:`PhysicalLoop._mechanical`).
+        fall_row, fall_max: fall when ``|fall_row @ q| > fall_max`` [rad].
+        stance, swing: the feet's names in stance-relative labels.
+    """
+
+    def __init__(self, walker: WalkerModel, checks: ContactChecks, steps_per_cycle: int = 1,
+                 phase: str = "clock", fall_row: np.ndarray | None = None,
+                 fall_max: float = np.inf, stance: str = "left", swing: str = "right"):
+        self.walker, self.checks = walker, checks
+        self.steps_per_cycle, self.phase = steps_per_cycle, phase
+        self.fall_row, self.fall_max = fall_row, fall_max
+        self.stance, self.swing = stance, swing
+        self.contact = Contact(walker)
+        model = walker.model
+        self.base_v = np.array([model.joints[walker.robot.joint_id(n)].idx_v
+                                for n in walker.base])
+        self.base_q = np.array([model.joints[walker.robot.joint_id(n)].idx_q
+                                for n in walker.base])
+        motors = [i for i in range(model.nv) if i not in set(self.base_v)]
+        v_name = {model.joints[j].idx_v: model.names[j] for j in range(1, model.njoints)}
+        self.motor_names = [v_name[i] for i in motors]
+        self.B = np.eye(model.nv)[:, motors]
+        self.motor_v = np.array(motors)
+        J = self.contact.jacobian(pin.neutral(model), stance)
+        if len(self.base_v) < 2 or not np.allclose(J[:, self.base_v[:2]], np.eye(2)):
+            raise RobotError(f"robot '{walker.robot.name}': the walker's first two base joints "
+                             f"({', '.join(walker.base[:2])}) must translate the root along the "
+                             "world's x and z")
+        if checks.effort is None:
+            checks.effort = np.full(len(motors), np.inf)
+
+    def contact_for(self, model: pin.Model) -> Contact:
+        """The contact of a changed world (same joints and frames, e.g. an event's plant)."""
+        if model is self.walker.model:
+            return self.contact
+        return Contact(self.walker, model)
+
+    # -- desired trajectory and allocation --------------------------------------------------------
+    def complete(self, qd: np.ndarray, vd: np.ndarray, ad: np.ndarray,
+                 anchor: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The desired base translation from the stance foot's constraint: the foot at
+        ``anchor`` (x, z) [m] with zero velocity and acceleration, the pitch and joints as given.
+        The first two base coordinates must be the world's x and z (checked at build)."""
+        c = self.contact
+        anchor = np.zeros(2) if anchor is None else anchor
+        qd, vd, ad = qd.copy(), vd.copy(), ad.copy()
+        bx, bz = self.base_v[0], self.base_v[1]
+        for _ in range(2):  # exact after one step for translations at the root; two for safety
+            p, _ = c.foot_state(qd, vd, self.stance)
+            qd[self.base_q[0]] += anchor[0] - p[0]
+            qd[self.base_q[1]] += anchor[1] - p[1]
+        J = c.jacobian(qd, self.stance)
+        vd[[bx, bz]] = 0.0
+        vd[[bx, bz]] = -(J @ vd)
+        ad[[bx, bz]] = 0.0
+        ad[[bx, bz]] = -(J @ ad + c.drift(qd, vd, self.stance))
+        return qd, vd, ad
+
+    def labelled(self, qd: np.ndarray, vd: np.ndarray, ad: np.ndarray, label: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The RMPs' values in the current labels: with an even ``steps_per_cycle`` the RMPs
+        describe the cycle in its first step's labels (the thesis's gait coordinates), so in
+        every second step (``label`` 1) the legs' values are exchanged."""
+        if label == 0:
+            return qd, vd, ad
+        q2, v2 = self.walker.relabel(qd, vd)
+        _, a2 = self.walker.relabel(qd, ad)
+        return q2, v2, a2
+
+    def chain(self, qd: np.ndarray, label: int) -> np.ndarray:
+        r"""``(nv, nv)`` derivative of the completed desired state by the RMPs' values: the
+        label's permutation, then the base translation that keeps the stance foot in place
+        (:math:`\partial x_b/\partial p = -J_c` for the other coordinates, base columns zero;
+        the same matrix maps velocities and, to first order, accelerations)."""
+        nv = len(qd)
+        G = np.eye(nv)
+        if label:  # the relabelling is linear on velocities: its matrix column by column
+            G = np.stack([self.walker.relabel(qd, e)[1] for e in np.eye(nv)], axis=1)
+        J = self.contact.jacobian(qd, self.stance)
+        T = np.eye(nv)
+        bx, bz = self.base_v[0], self.base_v[1]
+        T[[bx, bz], :] = -J
+        T[:, [bx, bz]] = 0.0
+        return T @ G
+
+    def allocate(self, q: np.ndarray, tau_w: np.ndarray) -> np.ndarray:
+        """Motor torques ``(k,)`` in [N m] for the wanted generalized force ``tau_w``."""
+        c = self.contact
+        M = pin.crba(c.model, c.data, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        J = c.jacobian(q, self.stance)
+        Mi = np.linalg.inv(M)
+        MiJ = Mi @ J.T
+        W = Mi - MiJ @ np.linalg.solve(J @ MiJ, MiJ.T)
+        BW = self.B.T @ W
+        return np.linalg.solve(BW @ self.B, BW @ tau_w)
+
+    def com_x(self, q: np.ndarray, v: np.ndarray) -> tuple[float, float]:
+        """The centre of mass's horizontal position over the stance foot in [m] and its rate
+        in [m/s]."""
+        c = self.contact
+        com = pin.centerOfMass(c.model, c.data, q, v)
+        foot, _ = c.foot_state(q, v, self.stance)
+        return float(com[0] - foot[0]), float(c.data.vcom[0][0])
+
+    def fallen(self, q: np.ndarray, v: np.ndarray) -> str | None:
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            return "the state became non-finite"
+        if self.fall_row is not None:
+            angle = float(self.fall_row @ q)
+            if abs(angle) > self.fall_max:
+                return (f"the checked link's angle reached {angle:.3g} rad "
+                        f"(walking.fall.max_abs = {self.fall_max}): the robot fell")
+        return None
+
+
+@dataclass
+class WalkLog:
+    """One cycle of the physical walker (generalized coordinates of the floating base).
+
+    Like :class:`feltool.hybrid.HybridLog`; ``impacts`` are ``(step, True, step length [m])``,
+    ``steps`` the per-step :class:`StepStats`, ``phase_index`` the RMP sample used at each
+    control step, ``tau`` the motor torques ``(n, k)`` [N m].
+    """
+
+    q: np.ndarray
+    v: np.ndarray
+    u_fb: np.ndarray
+    q_end: np.ndarray
+    v_end: np.ndarray
+    Qd: np.ndarray
+    Vd: np.ndarray
+    Ad: np.ndarray
+    stance: np.ndarray
+    impacts: list = field(default_factory=list)
+    fall: str | None = None
+    u_rows: np.ndarray | None = None
+    u_err: np.ndarray | None = None
+    steps: list = field(default_factory=list)
+    phase_index: np.ndarray | None = None
+    tau: np.ndarray | None = None
+    force: np.ndarray | None = None
+    torque_hits: np.ndarray | None = None
+    not_walking: str | None = None
+
+
+class PhysicalLoop:
+    """Closed loop of a physical walker, stepped one control step at a time.
+
+    Args:
+        known: The known model's dynamics (floating base; feedforward).
+        law: Feedback laws (generalized coordinates).
+        walker: The physical walker.
+        dt: Control step [s].
+        substeps: Runge-Kutta steps per control step.
+        error_rows: ``(nv,)`` controllers whose output is the learning signal.
+    """
+
+    def __init__(self, known: Dynamics, law: FeedbackLaw, walker: PhysicalWalker, dt: float,
+                 substeps: int = 1, error_rows: np.ndarray | None = None):
+        self.known, self.law, self.walker = known, law, walker
+        self.dt, self.substeps = dt, substeps
+        nv = walker.walker.model.nv
+        self.error_rows = np.zeros(nv) if error_rows is None else np.asarray(error_rows, float)
+        self.allocation = None
+        self._ends: dict = {}
+
+    def initial_state(self, P: np.ndarray, Pv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Start on the desired trajectory, stabilized quantities on target, stance foot at the
+        origin with zero velocity."""
+        q, v = self.law.consistent_state(P[0], Pv[0])
+        q, v, _ = self.walker.complete(q, v, np.zeros_like(v))
+        return q, v
+
+    def run_cycle(self, plant: Dynamics, q: np.ndarray, v: np.ndarray, P: np.ndarray,
+                  Pv: np.ndarray, Pa: np.ndarray) -> WalkLog:
+        """One cycle from ``(q, v)`` (stance foot at the origin) with desired trajectories
+        ``P, Pv, Pa`` ``(n, nv)``; ``plant`` is the simulated world."""
+        W = self.walker
+        contact = W.contact_for(getattr(plant, "model", W.walker.model))
+        n, nv = P.shape
+        clock = W.phase == "clock"  # else touchdown or mechanical: the cycle ends at touchdowns
+        n_max = n if clock else 3 * n
+        k_motors = W.B.shape[1]
+        Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n_max, nv)) for _ in range(8))
+        Tau, Force = np.zeros((n_max, k_motors)), np.zeros((n_max, 2))
+        index = np.zeros(n_max, dtype=int)
+        labels = np.zeros(n_max, dtype=int)
+        hits = np.zeros(k_motors, int)
+        steps, impacts = [StepStats()], []
+        h = self.dt / self.substeps
+        j, m, fall, t_step, kind = 0, 0, None, 0.0, None
+        try:
+            while m < n_max and not (clock and m >= n):
+                if not clock and len(impacts) >= W.steps_per_cycle:
+                    break
+                k = m
+                jj = min(j, n - 1)
+                label = len(impacts) % 2 if W.steps_per_cycle % 2 == 0 else 0
+                labels[k] = label
+                if W.phase == "mechanical":
+                    jj, p, pv, pa = self._mechanical(q, v, P, Pv, Pa, len(impacts), label)
+                else:
+                    p, pv, pa = P[jj], Pv[jj], Pa[jj]
+                index[k] = jj
+                qd, vd, ad = W.complete(*W.labelled(p, pv, pa, label))
+                Q[k], V[k], Qd[k], Vd[k], Ad[k] = q, v, qd, vd, ad
+                m += 1
+                r, rd = self.law.references(qd[None], vd[None])
+                U[k], Urows[k], Uerr[k] = self.law.terms(q, v, r[0], rd[0], self.error_rows)
+                u = W.allocate(q, self.known.inverse(qd, vd, ad) + U[k])
+                over = np.abs(u) > W.checks.effort
+                if over.any() and W.checks.torques != "ignore":
+                    hits += over
+                    if W.checks.torques == "saturate":
+                        u = np.clip(u, -W.checks.effort, W.checks.effort)
+                    else:
+                        i = int(np.argmax(np.abs(u) - W.checks.effort))
+                        raise NotWalking(
+                            f"the torque of motor '{W.motor_names[i]}' is {u[i]:.4g} N m, beyond "
+                            f"its effort limit {W.checks.effort[i]:.4g} N m "
+                            "(sim.torque_limits: report; saturate clips it)", "torque")
+                Tau[k] = u
+                tau = W.B @ u
+                steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
+                ended = False
+                for i_sub in range(self.substeps):
+                    q, v, s = self._substep(contact, q, v, tau, h, steps, Force, k, clock)
+                    if s is not None:
+                        t_td = k * self.dt + i_sub * h + s
+                        steps[-1].duration = t_td - t_step
+                        t_step = t_td
+                        impacts.append((k + 1, True, steps[-1].length))
+                        steps.append(StepStats())
+                        if not clock:
+                            # the phase restarts at the touchdown: step i of the cycle starts
+                            # at sample i n / steps_per_cycle (the increment below adds 1), and
+                            # the next control step starts at the touchdown (the sub-step's
+                            # rest is not run); the cycle ends at its last touchdown
+                            j = len(impacts) * (n // W.steps_per_cycle) - 1
+                            ended = len(impacts) >= W.steps_per_cycle
+                            break
+                fall = W.fallen(q, v)
+                if fall or ended:
+                    break
+                j += 1
+            if fall is None and not clock and len(impacts) < W.steps_per_cycle:
+                raise NotWalking(f"no touchdown within {n_max * self.dt:.3g} s "
+                                 f"({len(impacts)} of {W.steps_per_cycle})", "touchdown")
+        except NotWalking as exc:
+            fall, kind = f"not walking: {exc}", exc.kind
+        sl = slice(0, m)
+        return WalkLog(Q[sl], V[sl], U[sl], q, v, Qd[sl], Vd[sl], Ad[sl], labels[sl],
+                       impacts, fall, Urows[sl], Uerr[sl], steps, index[sl], Tau[sl], Force[sl],
+                       hits, kind)
+
+    def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int):
+        r"""The RMPs' values at the mechanical phase. The phase variable is the centre of
+        mass's horizontal position over the stance foot, :math:`x` (the stance foot is at
+        x = 0), whose desired values over the step's samples, :math:`x_d(t_i)`, must increase:
+        the current :math:`x` gives the fractional sample :math:`t^*` with :math:`x_d(t^*) = x`
+        (held at the step's ends), the samples are interpolated linearly at :math:`t^*`, the
+        velocities scaled by :math:`r = \dot x / \dot x_d(t^*)` and the accelerations by
+        :math:`r^2` (the :math:`\dot r` term neglected). Returns ``(nearest sample, p, pv, pa)``."""
+        W = self.walker
+        n = len(P)
+        ns = n // W.steps_per_cycle
+        i0 = (step % W.steps_per_cycle) * ns
+        key = (id(P), i0, label)
+        if self._ends.get("key") != key:
+            x, xv = np.empty(ns), np.empty(ns)
+            for i in range(ns):
+                qd, vd, _ = W.complete(*W.labelled(P[i0 + i], Pv[i0 + i], Pa[i0 + i], label))
+                x[i], xv[i] = W.com_x(qd, vd)
+            if np.any(np.diff(x) <= 0):
+                raise NotWalking("walking.phase: mechanical needs the desired centre of mass to "
+                                 "move forward over the stance foot through the whole step",
+                                 "phase")
+            self._ends = {"key": key, "x": x, "xv": xv}
+        x, xv = self._ends["x"], self._ends["xv"]
+        xc, xc_rate = W.com_x(q, v)
+        f = float(np.interp(xc, x, np.arange(ns)))
+        a = min(int(f), ns - 2)
+        w = f - a
+        lerp = lambda X: (1 - w) * X[i0 + a] + w * X[i0 + a + 1]  # noqa: E731
+        x_rate = (1 - w) * xv[a] + w * xv[a + 1]
+        rate = xc_rate / x_rate if x_rate > 1e-9 else 1.0
+        return i0 + int(round(f)), lerp(P), rate * lerp(Pv), rate**2 * lerp(Pa)
+
+    def jacobian_derivatives(self, log: WalkLog) -> tuple:
+        """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with
+        respect to the RMPs' values, through :meth:`PhysicalWalker.chain`."""
+        u_ff, Dq, Dv, M = self.known.inverse_derivatives_batch(log.Qd, log.Vd, log.Ad)
+        Gs = np.stack([self.walker.chain(qd, s) for qd, s in zip(log.Qd, log.stance)])
+        mul = lambda D: np.einsum("kij,kjl->kil", D, Gs)  # noqa: E731
+        return u_ff, mul(Dq), mul(Dv), mul(M)
+
+    # -- one Runge-Kutta sub-step with the contact events ------------------------------------------
+    def _rk4(self, contact: Contact, q, v, tau, h):
+        W, model = self.walker, contact.model
+
+        def f(qq, vv):
+            return contact.stance(qq, vv, tau, W.stance).a
+
+        a1 = f(q, v)
+        q2, v2 = pin.integrate(model, q, 0.5 * h * v), v + 0.5 * h * a1
+        a2 = f(q2, v2)
+        q3, v3 = pin.integrate(model, q, 0.5 * h * v2), v + 0.5 * h * a2
+        a3 = f(q3, v3)
+        q4, v4 = pin.integrate(model, q, h * v3), v + h * a3
+        a4 = f(q4, v4)
+        dq = h / 6.0 * (v + 2 * v2 + 2 * v3 + v4)
+        return pin.integrate(model, q, dq), v + h / 6.0 * (a1 + 2 * a2 + 2 * a3 + a4)
+
+    def _substep(self, contact: Contact, q, v, tau, h, steps, Force, k, finish: bool = True):
+        """Integrate one sub-step; returns ``(q, v, s)`` with ``s`` the touchdown's time in the
+        sub-step [s], or None. After a touchdown the rest of the sub-step runs on when
+        ``finish`` (clock phase); otherwise the state at the touchdown is returned."""
+        W, chk, st = self.walker, self.walker.checks, steps[-1]
+        res = contact.stance(q, v, tau, W.stance)
+        Fx, Fz = res.force
+        Force[k] = res.force
+        st.min_normal_force = min(st.min_normal_force, float(Fz))
+        if Fz <= chk.normal_force_min or Fz <= 0.0:
+            raise NotWalking(f"the stance foot's normal force is {Fz:.4g} N (walking."
+                             f"normal_force_min = {chk.normal_force_min} N): the foot would lift",
+                             "normal_force")
+        ratio = abs(Fx) / Fz
+        st.max_friction_ratio = max(st.max_friction_ratio, float(ratio))
+        if ratio > chk.friction:
+            raise NotWalking(f"the stance foot's friction ratio |F_x|/F_z is {ratio:.3g} "
+                             f"(walking.friction = {chk.friction}): the foot would slide", "friction")
+        anchor = contact.foot_state(q, v, W.stance)[0]
+        z0 = contact.foot_state(q, v, W.swing)[0][1]
+        q1, v1 = self._rk4(contact, q, v, tau, h)
+        q1, v1 = contact.hold(q1, v1, W.stance, anchor)
+        (sx, sz), _ = contact.foot_state(q1, v1, W.swing)
+        ahead = sx - anchor[0]
+        exempt = abs(ahead) < chk.scuff_exempt
+        landing = not exempt and ahead > 0.0 and z0 > 0.0 and sz <= 0.0
+        if not landing:
+            if not exempt:
+                st.min_clearance = min(st.min_clearance, float(sz))
+                if sz < -chk.clearance_tol:
+                    where = "behind" if ahead <= 0.0 else "ahead of"
+                    raise NotWalking(
+                        f"the swing foot is {-sz * 1e3:.3g} mm below the ground, {abs(ahead):.3g}"
+                        f" m {where} the stance foot, away from a touchdown (walking."
+                        f"scuff_exempt_m = {chk.scuff_exempt}, walking.clearance_tol_m = "
+                        f"{chk.clearance_tol})", "clearance")
+            return q1, v1, None
+        # Touchdown inside this sub-step: its time by Brent's method on the sub-step's length.
+        def height(s):
+            qs, vs = self._rk4(contact, q, v, tau, s)
+            return contact.foot_state(qs, vs, W.swing)[0][1]
+
+        s = brentq(height, 0.0, h, xtol=1e-12, rtol=1e-12, maxiter=100)
+        qs, vs = self._rk4(contact, q, v, tau, s)
+        qs, vs = contact.hold(qs, vs, W.stance, anchor)
+        (tx, tz), (tvx, tvz) = contact.foot_state(qs, vs, W.swing)
+        st.touchdown_height = float(tz)
+        st.min_clearance = min(st.min_clearance, max(float(tz), 0.0))
+        if tvz >= 0.0:
+            raise NotWalking("the swing foot reached the ground moving up", "touchdown")
+        imp = contact.impact(qs, vs, W.swing)
+        Ix, Iz = imp.impulse
+        st.impulse, st.energy_lost = imp.impulse.copy(), imp.energy_lost
+        st.impulse_ratio = abs(Ix) / Iz if Iz > 0 else np.inf
+        st.length = float(tx - anchor[0])
+        _, (_, trail_vz) = contact.foot_state(qs, imp.v, W.stance)
+        st.trailing_vz = float(trail_vz)
+        if Iz <= 0.0:
+            raise NotWalking(f"the touchdown impulse would pull the ground (I_z = {Iz:.4g} N s)", "impulse")
+        if st.impulse_ratio > chk.friction:
+            raise NotWalking(f"the touchdown impulse ratio |I_x|/I_z is {st.impulse_ratio:.3g} "
+                             f"(walking.friction = {chk.friction}): the landing foot would slide",
+                             "impulse")
+        if trail_vz < -1e-9:
+            raise NotWalking(f"the trailing foot does not lift off after the touchdown (its "
+                             f"vertical velocity is {trail_vz:.4g} m/s)", "lift_off")
+        # Relabel (the landing leg becomes the stance leg) and put its foot at x = 0, z = 0.
+        qn, vn = W.walker.relabel(qs, imp.v)
+        qn = qn.copy()
+        qn, vn = contact.hold(qn, vn, W.stance, np.array([tx, 0.0]))
+        qn[W.base_q[0]] -= tx
+        rest = h - s
+        if finish and rest > 1e-12:
+            qn, vn = self._rk4(contact, qn, vn, tau, rest)
+            qn, vn = contact.hold(qn, vn, W.stance, np.zeros(2))
+        return qn, vn, s
