@@ -173,7 +173,7 @@ def _server_of(pid: int):
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         proc.kill()
-    proc.wait(timeout=10)
+    proc.wait(timeout=60)
     if proc.stdout:
         proc.stdout.close()
 
@@ -235,7 +235,7 @@ def test_view_url_still_shows_the_robot_after_the_run_has_ended(browser, tmp_pat
         _assert_drawn_moving_hideable(page, "view after the run")
         page.close()
         os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C ends the viewing, not the results
-        rest, _ = proc.communicate(timeout=30)
+        rest, _ = proc.communicate(timeout=120)
         assert proc.returncode == 0, "".join(lines) + rest
         assert "feltool viewer: stopped" in rest
     finally:
@@ -335,7 +335,7 @@ def test_sigterm_stops_the_run_and_its_meshcat_server(tmp_path):
             time.sleep(0.05)
         family = [server] + [c for c in psutil.Process(proc.pid).children(recursive=True)]
         proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=20)
+        out, _ = proc.communicate(timeout=120)
         assert proc.returncode == 128 + signal.SIGTERM, out
         assert "Traceback" not in out, out
         _, alive = psutil.wait_procs(family, timeout=60)

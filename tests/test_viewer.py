@@ -265,7 +265,7 @@ def test_live_viewer_server_dies_with_its_parent(tmp_path):
         pid, url = int(line[0]), line[1]
         assert not _gone(pid, 0.1)
         parent.send_signal(signal.SIGTERM)
-        parent.wait(timeout=10)
+        parent.wait(timeout=60)
         assert _gone(pid, 60.0), "the meshcat server outlived its parent"
         assert _port_free(_port(url))
     finally:
