@@ -157,8 +157,8 @@ def _keep_viewing(viewer, run_dir: Path, seed: int | None, cycles: list[str], lo
         return
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     until = "Ctrl-C" if timeout_s is None else f"Ctrl-C or {timeout_s:g} s"
-    print(f"feltool viewer: serving {viewer.url} until {until}", flush=True)
-    try:
+    try:  # announced inside: a Ctrl-C right after the line is the one the line asks for
+        print(f"feltool viewer: serving {viewer.url} until {until}", flush=True)
         replay(viewer, run_dir, seed, cycles, loops=loops, timeout_s=timeout_s)
         while deadline is None or time.monotonic() < deadline:
             time.sleep(0.2 if deadline is None else min(0.2, deadline - time.monotonic()))

@@ -330,8 +330,8 @@ class JointConfig(Strict):
 
 class ModelLearningConfig(Strict):
     """Classic (Kawato) feedback error learning of an inverse-model correction (eq. 2.8, 3.4):
-    u_ff = RNEA_model(q_d, qd_d, qdd_d) + Phi(q_d, qd_d, qdd_d) theta_m, with the whole actuated
-    feedback as the error signal."""
+    u_ff = RNEA_model(q_d, qd_d, qdd_d) + S_m Phi(q_d, qd_d, qdd_d) theta_m, with the feedback of
+    the error joints S_m (default: every actuated joint) as the error signal."""
 
     features: Literal["regressor", "phase_basis"] = Field("regressor", description="Features "
         "Phi: regressor = Pinocchio's joint-torque regressor, so theta_m are corrections of the "
@@ -339,7 +339,8 @@ class ModelLearningConfig(Strict):
         "normalised von Mises functions of the phase, one set per joint, theta_m in [N m].")
     error: Literal["all_feedback", "tracking"] | list[str] = Field("all_feedback", description=""
         "Error signal: all actuated feedback (Kawato's FEL), only the tracking joints' feedback "
-        "(leaves the stabilizing feedback to trajectory FEL when both run), or a list of joints.")
+        "(leaves the stabilizing feedback to trajectory FEL when both run), or a list of joints. "
+        "The correction drives only these joints (docs/model_learning.md).")
     basis: int = Field(20, ge=1, le=1000, description="Number of phase basis functions per "
                        "joint (phase_basis only).")
     width: PositiveFloat | None = Field(None, le=MAX_WIDTH, description="Width h of the phase basis [-] "
@@ -362,7 +363,8 @@ class ModelLearningConfig(Strict):
     jacobian: Literal["learned", "nominal"] = Field("learned", description="Inverse model whose "
         "derivatives the trajectory learner's Jacobian uses when both learn: learned = the known "
         "model plus the current correction (chain rule through Phi theta_m; regressor features "
-        "give RNEA with pi_model + theta_m), nominal = the known model alone.")
+        "give RNEA with pi_model + theta_m; on the joints the correction drives), nominal = the "
+        "known model alone.")
 
 
 class BodyOverride(Strict):

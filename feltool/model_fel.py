@@ -6,13 +6,15 @@ parameters :math:`\theta_m` (eq. 2.8):
 .. math::
 
     u_{ff}^k = \mathrm{RNEA}_{model}(q_d^k, \dot q_d^k, \ddot q_d^k)
-             + \Phi(q_d^k, \dot q_d^k, \ddot q_d^k)\,\theta_m ,
+             + S_m\,\Phi(q_d^k, \dot q_d^k, \ddot q_d^k)\,\theta_m ,
 
-and the whole actuated feedback is the error signal that moves :math:`\theta_m` (eq. 2.10, 3.4):
+and the feedback of the error joints :math:`S_m` (a 0/1 diagonal; Kawato: every actuated joint)
+is the error signal that moves :math:`\theta_m` (eq. 2.10, 3.4). The correction drives only the
+joints whose feedback trains it (:meth:`ModelLearner.step` says why):
 
 .. math::
 
-    \theta_{m,h+1} = \theta_{m,h} + \alpha_m \sum_{k=1}^{N} \Phi_k^\top u_{fb}^k
+    \theta_{m,h+1} = \theta_{m,h} + \alpha_m \sum_{k=1}^{N} \Phi_k^\top S_m u_{fb}^k
     \qquad \text{(gradient, per cycle; per step: one sample at a time)}
 
 or the Levenberg-Marquardt step
@@ -161,13 +163,24 @@ class ModelLearner:
 
         return make_dynamics(corrected(theta_m), "pinocchio")
 
-    @staticmethod
-    def correction(Phi: np.ndarray, theta_m: np.ndarray) -> np.ndarray:
-        """:math:`\\Phi_k\\theta_m` for every sample, ``(n, nv)`` in [N m]."""
-        return Phi @ theta_m
+    def correction(self, Phi: np.ndarray, theta_m: np.ndarray) -> np.ndarray:
+        """:math:`S_m\\Phi_k\\theta_m` for every sample, ``(n, nv)`` in [N m]: the correction
+        drives only the joints whose feedback trains it (:math:`S_m` = ``error_mask``; see
+        :meth:`step` for why)."""
+        return (Phi @ theta_m) * self.error_mask
 
     def step(self, theta_m: np.ndarray, Phi: np.ndarray, U_fb: np.ndarray) -> np.ndarray:
-        """Parameters after one cycle's update from its features and feedback."""
+        """Parameters after one cycle's update from its features and feedback.
+
+        FEL's gradient :math:`\\sum_k \\Phi_k^\\top S_m u_{fb}^k` is a descent direction of the
+        feedback only if a change of the feedforward on joint j shows up, with opposite sign, in
+        the feedback *of joint j* (:math:`u_{fb} \\approx -\\Delta u_{ff}`). A correction that
+        also drove joints outside :math:`S_m` would act on the error only through the arm's
+        dynamic coupling and those joints' controllers; with a stabilized elbow following none of
+        its (random) desired trajectory, that path has the wrong sign along directions the
+        desired trajectory excites and the true motion does not (link 2's inertia), and the
+        parameters drifted until the arm fell (docs/model_learning.md). Hence
+        :meth:`correction` applies :math:`S_m`."""
         e = U_fb * self.error_mask
         g = np.einsum("kj,kjp->p", e, Phi)
         if self.update == "gradient":
@@ -198,7 +211,7 @@ class ModelLearner:
         for k in range(n):
             Q[k], V[k] = q, v
             U[k], Urows[k], Uerr[k] = loop.law.terms(q, v, R[k], Rd[k], loop.error_rows)
-            tau = loop.actuated * (u_ff_model[k] + Phi[k] @ theta_m + U[k])
+            tau = loop.actuated * (u_ff_model[k] + (Phi[k] @ theta_m) * self.error_mask + U[k])
             q, v = loop.advance(q, v, tau)
             theta_m += self.rate * Phi[k].T @ (U[k] * self.error_mask)
         return CycleLog(Q, V, U, q, v, Urows, Uerr), theta_m

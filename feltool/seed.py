@@ -432,14 +432,15 @@ def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
     log, theta_m_next = model.run_cycle(loop, q, v, R, Rd, u_ff, (Qd, Vd, Ad), theta_m)
     theta_next = theta
     if exp.learner.n_learned and np.all(np.isfinite(log.v)):
-        dyn = exp.dynamics
-        if exp.config.learning.model.jacobian == "learned":
-            learned = model.learned_dynamics(theta_m)  # the model this cycle's u_ff came from
-            if learned is not None:
-                dyn = learned
-                if derivs is not None:
-                    derivs = learned.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
-        J = exp.learner.jacobian(dyn, theta, Qd, Vd, Ad, derivs)
+        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
+        # The joints the correction drives (model.error_mask) got u_ff from the learned model,
+        # the others from the known one: the Jacobian row by row from the model each row used.
+        rows = (model.error_mask > 0) & (exp.learner.error_mask > 0)
+        learned = (model.learned_dynamics(theta_m)
+                   if exp.config.learning.model.jacobian == "learned" and rows.any() else None)
+        if learned is not None:
+            d = learned.inverse_derivatives_batch(Qd, Vd, Ad)[1:] if derivs is not None else None
+            J[:, rows] = exp.learner.jacobian(learned, theta, Qd, Vd, Ad, d)[:, rows]
         theta_next = exp.learner.step(theta, J, log.u_err)
     out = _outcome(exp, log, Qd, theta_next)
     out.theta_m_next = theta_m_next

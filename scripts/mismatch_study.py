@@ -3,7 +3,8 @@
 Runs the three variants of ``configs/two_link_standard_mismatch.yaml`` for several seeds, draws
 ``docs/figures/mismatch_feedback.png`` and prints the numbers quoted in docs/model_learning.md::
 
-    PYTHONPATH=. python scripts/mismatch_study.py --seeds 12 --cycles 400
+    PYTHONPATH=. python scripts/mismatch_study.py --seeds 20 --cycles 400
+    PYTHONPATH=. python scripts/mismatch_study.py --seeds 20 --cycles 300 --interference
 """
 
 from __future__ import annotations
@@ -19,6 +20,20 @@ from feltool.experiment import load_experiment, run_seed
 from feltool.model_fel import identifiability, inertial_parameters
 
 ROOT = Path(__file__).resolve().parent.parent
+#: Rows of the "when they interfere" table: label -> --set overrides (stabilizing feedback at the
+#: last cycle, every seed; ``--interference``).
+INTERFERENCE = {
+    "all_feedback, nominal": ["learning.model.error=all_feedback", "learning.model.jacobian=nominal"],
+    "all_feedback, learned": ["learning.model.error=all_feedback"],
+    "all_feedback, nominal, model rate 1.5e-7": ["learning.model.error=all_feedback",
+                                                  "learning.model.jacobian=nominal",
+                                                  "learning.model.rate=1.5e-7"],
+    "all_feedback, nominal, goal rate 2e-5": ["learning.model.error=all_feedback",
+                                              "learning.model.jacobian=nominal",
+                                              "learning.rates.goal=2e-5"],
+    "tracking (the config)": [],
+    "tracking, goal rate 2e-5": ["learning.rates.goal=2e-5"],
+}
 CONFIG = ROOT / "configs" / "two_link_standard_mismatch.yaml"
 VARIANTS = {  # label -> --set overrides
     "(i) trajectory FEL alone": ["learning.model=null"],
@@ -34,13 +49,40 @@ def _run(args):
     return label, seed, res.rows, res.params.get("model.theta")
 
 
+def _run_row(args):
+    label, seed, cycles = args
+    res = run_seed(load_experiment(CONFIG, INTERFERENCE[label]), seed, cycles)
+    return label, seed, (None if res.summary["diverged"] else
+                         res.rows[-1]["fb_abs_mean_stabilized"])
+
+
+def interference(seeds: int, cycles: int, workers: int) -> None:
+    """The "when they interfere" table: stabilizing feedback after ``cycles`` per seed."""
+    jobs = [(label, s, cycles) for label in INTERFERENCE for s in range(seeds)]
+    with ProcessPoolExecutor(workers) as pool:
+        results = list(pool.map(_run_row, jobs))
+    out = {}
+    for label in INTERFERENCE:
+        vals = [v for lab, _, v in results if lab == label]
+        ok = [v for v in vals if v is not None]
+        out[label] = {"diverged": len(vals) - len(ok), "mean": float(np.mean(ok)) if ok else None,
+                      "min": min(ok, default=None), "max": max(ok, default=None),
+                      "per_seed": [None if v is None else round(v, 4) for v in vals]}
+    print(json.dumps({"seeds": seeds, "cycles": cycles, "rows": out}, indent=1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--cycles", type=int, default=300)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures" / "mismatch_feedback.png")
+    ap.add_argument("--interference", action="store_true",
+                    help="print the error-signal/Jacobian/rate table instead")
     a = ap.parse_args()
+    if a.interference:
+        interference(a.seeds, a.cycles, a.workers)
+        return
     jobs = [(label, s, a.cycles) for label in VARIANTS for s in range(a.seeds)]
     with ProcessPoolExecutor(a.workers) as pool:
         results = list(pool.map(_run, jobs))

@@ -34,30 +34,44 @@ def test_regressor_times_inertial_parameters_is_rnea(robot, rng):
     np.testing.assert_allclose(Y @ inertial_parameters(model), expected, rtol=1e-12, atol=1e-10)
 
 
+def _goldens() -> dict:
+    import json
+
+    return json.loads((ROOT / "tests" / "data" / "goldens.json").read_text())
+
+
 @pytest.mark.parametrize("name", ["two_link_standard", "two_link_human_arm"])
-def test_existing_configs_give_the_metrics_recorded_before_plant_and_model_learning(name, tmp_path):
+def test_existing_configs_give_the_golden_metrics(name, tmp_path):
     """With no plant block and with an explicit `plant: {}` (a separate copy of the model) the
     metrics are byte-identical, and they equal the golden metrics.csv (seeds 0-1, 6 cycles)
-    recorded before plant and model learning existed. The golden comparison allows 1e-12
-    relative: later refactors of the loop (vectorised references, a local matrix exponential)
-    legitimately move the last bits; a real regression moves far more."""
+    written by scripts/make_goldens.py (its docstring says where the numbers come from; the
+    goldens are regenerated only by it, for an intended change). The comparison allows 1e-9
+    relative: refactors so far moved the last bits (< 1e-11); a real change of the method moves
+    the metrics by 1e-4 or more (scripts/mutation_check.py)."""
     import csv
+    import hashlib
     import io
 
-    golden = list(csv.DictReader(io.StringIO(
-        (ROOT / "tests" / "data" / f"metrics_{name}.seeds0-1.cycles6.csv").read_text())))
+    record = _goldens()
+    fname = f"metrics_{name}.seeds0-1.cycles6.csv"
+    meta = record["files"][fname]
+    assert record["generated_by"] == "scripts/make_goldens.py"
+    # A changed config needs new goldens on purpose (the script), not a silently relaxed test.
+    assert meta["config_sha256"] == hashlib.sha256(
+        (ROOT / meta["config"]).read_bytes()).hexdigest(), "re-run scripts/make_goldens.py"
+    golden = list(csv.DictReader(io.StringIO((ROOT / "tests" / "data" / fname).read_text())))
     texts = []
     for overrides in ([], ["plant={}"]):
         exp = load_experiment(CONFIGS / f"{name}.yaml", overrides)
         assert (exp.plant is exp.dynamics) == (not overrides)
-        rows = [row for seed in (0, 1) for row in run_seed(exp, seed, 6).rows]
+        rows = [row for seed in meta["seeds"] for row in run_seed(exp, seed, meta["cycles"]).rows]
         write_metrics(tmp_path / "metrics.csv", rows)
         texts.append((tmp_path / "metrics.csv").read_text())
         assert len(rows) == len(golden)
         for row, ref in zip(rows, golden):
             assert row.keys() == ref.keys()
             for key, value in row.items():
-                assert value == pytest.approx(float(ref[key]), rel=1e-12, abs=1e-14), key
+                assert value == pytest.approx(float(ref[key]), rel=1e-9, abs=1e-12), key
     assert texts[0] == texts[1]
 
 
@@ -113,13 +127,16 @@ def test_identifiable_combinations_of_the_planar_arm():
 
 def test_model_fel_learns_a_heavier_link_2():
     """Acceptance: model FEL with regressor features takes the total mean |feedback| below 5 %
-    of its first cycle, and the learned torques match the plant's RNEA to 5 % RMS."""
+    of its first cycle, and the learned torques match the plant's RNEA to 5 % RMS. This variant
+    draws nothing at random (the elbow follows its demo): every seed is the same run, so one
+    seed covers them all (checked: seeds 0 and 1 start from the same parameters)."""
     exp = load_experiment(MISMATCH, MODEL_ONLY)
+    np.testing.assert_array_equal(exp.initial_parameters(0), exp.initial_parameters(1))
     Qd, Vd, Ad = exp.primitives.desired(exp.theta_demo)
     Y = exp.model_learner.features.features(Qd, Vd, Ad)
     u_plant = exp.plant.inverse_batch(Qd, Vd, Ad)
     u_model = exp.dynamics.inverse_batch(Qd, Vd, Ad)
-    for seed in (0, 1):
+    for seed in (0,):
         res = run_seed(exp, seed, cycles=25)
         total = [r["fb_abs_mean_total"] for r in res.rows]
         assert not res.summary["diverged"]
@@ -200,14 +217,39 @@ def test_learned_dynamics_is_the_corrected_inverse_model(rng):
     np.testing.assert_allclose(learned.inverse_batch(Q, V, A), expected, rtol=1e-10, atol=1e-10)
 
 
-def test_both_learners_end_with_less_stabilizing_feedback_than_trajectory_fel_alone():
-    """Acceptance: with the 30 % mismatch, trajectory + model FEL (model error: tracking, the
-    trajectory's Jacobian through the learned model) ends with a stabilizing feedback below
-    trajectory FEL alone's. Seed 3 is the one that drifted up to 0.103 N m with Kawato's
-    all-feedback error; after 150 cycles trajectory FEL alone is at its 0.0294 N m floor."""
+#: Seeds of the acceptance tests below, fixed before looking (issue 14): the first ten.
+ACCEPTANCE_SEEDS = range(10)
+
+
+def test_trajectory_and_model_fel_beat_either_alone_on_every_seed():
+    """Acceptance, seeds 0-9 (every one must pass), 150 cycles: the config as written (both
+    learners) against the same config with one learner switched off.
+
+    * vs trajectory FEL alone (``learning.model=null``, same seed): the stabilizing feedback (the
+      trajectory learner's own error) ends below 0.6x, the total feedback below 0.15x. Measured
+      at 150 cycles: 0.0116-0.0132 vs 0.0294-0.0299 N m (0.39-0.45x) and 0.28-0.37 vs 4.59 N m.
+    * vs model FEL alone (``joints.elbow.learn=null``: the elbow's forward trajectory stays its
+      demo, no random draw, so one run serves every seed): both below 0.15x. Measured: total
+      4.59, stabilizing 2.05 N m (the model's error is the shoulder's feedback only).
+    The three seeds that diverged before the correction was restricted to its error joints (13,
+    15, 18 of 20) are covered by the 20-seed run in docs/model_learning.md; the test keeps to
+    ten for CI time."""
     both = load_experiment(MISMATCH)
     alone = load_experiment(MISMATCH, ["learning.model=null"])
-    for seed in (3, 5):
-        b = run_seed(both, seed, cycles=150).rows[-1]["fb_abs_mean_stabilized"]
-        a = run_seed(alone, seed, cycles=150).rows[-1]["fb_abs_mean_stabilized"]
-        assert a > 0.029 and b < 0.8 * a, (seed, b, a)
+    model = load_experiment(MISMATCH, ["joints.elbow.learn=null"])
+    np.testing.assert_array_equal(model.initial_parameters(0), model.initial_parameters(7))
+    m = run_seed(model, 0, cycles=150).rows[-1]
+    failures = []
+    for seed in ACCEPTANCE_SEEDS:
+        res = run_seed(both, seed, cycles=150)
+        assert not res.summary["diverged"], res.summary
+        assert res.summary["limits"] == {"joint_limit_steps": {}, "torque_limit_steps": {}}
+        b = res.rows[-1]
+        a = run_seed(alone, seed, cycles=150).rows[-1]
+        ratios = (b["fb_abs_mean_stabilized"] / a["fb_abs_mean_stabilized"],
+                  b["fb_abs_mean_total"] / a["fb_abs_mean_total"],
+                  b["fb_abs_mean_stabilized"] / m["fb_abs_mean_stabilized"],
+                  b["fb_abs_mean_total"] / m["fb_abs_mean_total"])
+        if not (ratios[0] < 0.6 and ratios[1] < 0.15 and ratios[2] < 0.15 and ratios[3] < 0.15):
+            failures.append((seed, [round(r, 3) for r in ratios]))
+    assert not failures, failures

@@ -27,8 +27,9 @@ def test_sigterm_then_resume_is_bit_identical(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "feltool.cli", "run", STANDARD, *ARGS,
                              "--out", str(cut)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not list((cut / "checkpoints").glob("*.json")):
+    deadline = time.monotonic() + 300  # a generous bound: the first checkpoint, mid-run
+    while not list((cut / "checkpoints").glob("*.json")):
+        assert time.monotonic() < deadline and proc.poll() is None, proc.communicate()
         time.sleep(0.05)
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=120)

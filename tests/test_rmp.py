@@ -97,3 +97,87 @@ def test_basis_is_von_mises():
 def test_period_must_be_whole_number_of_steps():
     with pytest.raises(InputError, match="whole number"):
         RhythmicPrimitive(10, 1.0, 0.03)
+
+
+# -- independent references: scipy's matrix exponential and ODE solver (issue 14) ----------------
+
+def _rmp_ode(prim: RhythmicPrimitive, theta: np.ndarray):
+    """Eq. 2.1-2.2 as a first-order ODE in (phi, q, qdot), written out here from the thesis
+    (not from feltool.rmp's matrices): tau phi' = 1, tau^2 q'' = alpha_z (beta_z (g - q) - tau q')
+    + r psi(phi)^T w, psi_i = exp(h (cos(phi - c_i) - 1)), c_i = 2 pi i / N."""
+    N, w, g = prim.n_basis, theta[:-1], theta[-1]
+    tau, az, bz, h, r = prim.tau, prim.alpha_z, prim.beta_z, prim.width, prim.amplitude
+    c = 2.0 * np.pi * np.arange(N) / N
+
+    def f(t, y):
+        phi, q, qd = y
+        psi = np.exp(h * (np.cos(phi - c) - 1.0))
+        return [1.0 / tau, qd, (az * (bz * (g - q) - tau * qd) + r * psi @ w) / tau**2]
+
+    return f
+
+
+@pytest.mark.parametrize("scale", [1e-3, 0.3, 1.0, 4.0, 20.0])
+def test_matrix_exponential_matches_scipy(scale, rng):
+    from scipy.linalg import expm as scipy_expm
+
+    from feltool.rmp import expm
+
+    for _ in range(5):
+        A = rng.normal(size=(2, 2)) * scale
+        np.testing.assert_allclose(expm(A), scipy_expm(A), rtol=1e-11,
+                                   atol=1e-14 * np.abs(scipy_expm(A)).max())
+
+
+@pytest.mark.parametrize("dt", [1e-3, 1e-2, 2e-2])
+def test_step_matrix_is_scipys_exponential_of_eq_2_2(dt):
+    """Phi = exp(A dt) with A written from eq. 2.2 in the test, compared with scipy."""
+    from scipy.linalg import expm as scipy_expm
+
+    prim = RhythmicPrimitive(10, 1.0, dt)
+    tau, az, bz = 1.0 / (2 * np.pi), 25.0, 25.0 / 4
+    A = np.array([[0.0, 1.0], [-az * bz / tau**2, -az / tau]])
+    np.testing.assert_allclose(prim.Phi, scipy_expm(A * dt), rtol=1e-13, atol=1e-15)
+
+
+@pytest.mark.parametrize("dt, n_basis, period", [(1e-2, 10, 1.0), (1e-3, 10, 1.0),
+                                                  (2e-2, 6, 2.0)])
+def test_rollout_matches_solve_ivp_of_eq_2_1_2_2(dt, n_basis, period, rng):
+    """The RMP's exact discretisation against scipy's adaptive integrator of the continuous
+    eq. 2.1-2.2 (rtol 1e-12), from an off-cycle state over 2.5 periods: positions to 1e-9 of the
+    motion's range, velocities and accelerations to 1e-8 of theirs."""
+    from scipy.integrate import solve_ivp
+
+    prim = RhythmicPrimitive(n_basis, period, dt)
+    theta = np.concatenate([rng.normal(0.0, 30.0, n_basis), [0.4]])
+    x0 = np.array([-0.2, 1.5])
+    n = int(2.5 * prim.n_steps)
+    out = prim.rollout(theta, x0, n)
+    t = np.arange(n) * dt
+    sol = solve_ivp(_rmp_ode(prim, theta), (0.0, t[-1]), [0.0, *x0], method="DOP853",
+                    t_eval=t, rtol=1e-12, atol=1e-12)
+    assert sol.success
+    f = _rmp_ode(prim, theta)
+    acc = np.array([f(0.0, y)[2] for y in sol.y.T])
+    for ours, ref in ((out.q, sol.y[1]), (out.v, sol.y[2]), (out.a, acc)):
+        span = np.ptp(ref)
+        assert span > 0.1
+        np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-8 * span)
+
+
+def test_limit_cycle_is_the_periodic_solution_of_eq_2_1_2_2(rng):
+    """Started on the RMP's closed-form limit cycle, scipy's integration of the ODE comes back
+    to the same state after one period and passes through every sample of it."""
+    from scipy.integrate import solve_ivp
+
+    prim = RhythmicPrimitive(10, 1.0, 1e-2)
+    theta = np.concatenate([rng.normal(0.0, 30.0, 10), [-0.3]])
+    cyc = prim.periodic(theta)
+    n = prim.n_steps
+    t = np.arange(n + 1) * prim.dt
+    sol = solve_ivp(_rmp_ode(prim, theta), (0.0, t[-1]), [0.0, cyc.q[0], cyc.v[0]],
+                    method="DOP853", t_eval=t, rtol=1e-12, atol=1e-12)
+    span_q, span_v = np.ptp(cyc.q), np.ptp(cyc.v)
+    np.testing.assert_allclose(sol.y[1, :n], cyc.q, atol=1e-9 * span_q)
+    np.testing.assert_allclose(sol.y[2, :n], cyc.v, atol=1e-8 * span_v)
+    np.testing.assert_allclose(sol.y[1:, n], [cyc.q[0], cyc.v[0]], atol=1e-8 * span_v)

@@ -150,7 +150,7 @@ def test_a_killed_run_reads_interrupted_and_resumes_to_the_same_numbers(tmp_path
     try:
         _wait_for(out / "checkpoints" / "seed-0.json", proc)
         os.killpg(proc.pid, signal.SIGKILL)  # no handler runs, nothing is cleaned up
-        proc.wait(timeout=30)
+        proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -94,21 +94,40 @@ def test_dask_sweep_equals_local_pool(cluster, local_sweep, tmp_path):
 
 
 def test_dask_sweep_survives_a_killed_worker(cluster, local_sweep, tmp_path):
+    """A worker is killed (SIGKILL) while the scheduler has a sweep task processing on it and
+    a checkpoint has been written (tasks are mid-run); the scheduler's own transition log
+    shows each task it held go processing -> released by the lost worker's cleanup and later
+    finish (processing -> memory), and sweep.csv has every row, equal to the local pool's. No
+    sleep decides anything: the killer polls the scheduler (bound: 120 s)."""
     lc, client = cluster
-    pids = list(client.run(os.getpid).values())
     out = tmp_path / "killed"
+    killed: dict = {}
 
-    def kill_one_worker():
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not list(out.glob("point-*/checkpoints/*.json")):
-            time.sleep(0.05)
-        os.kill(pids[0], signal.SIGKILL)
+    def kill_a_busy_worker():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            busy = {w: keys for w, keys in client.processing().items() if keys}
+            started = list(out.glob("point-*/checkpoints/*.json"))
+            if busy and started:
+                address, keys = next(iter(busy.items()))
+                pid = client.run(os.getpid, workers=[address])[address]
+                killed.update(address=address, keys=list(keys), pid=pid)
+                os.kill(pid, signal.SIGKILL)
+                return
+            time.sleep(0.01)
 
-    killer = threading.Thread(target=kill_one_worker)
+    killer = threading.Thread(target=kill_a_busy_worker)
     killer.start()
     run_sweep(STANDARD, parse_grid(GRID[1::2]), out, seeds=[0, 1], cycles=30,
               scheduler=lc.scheduler_address, show_progress=False)
     killer.join()
+    assert killed.get("keys"), "no worker was seen holding a task mid-run"
+    # The scheduler's record: a task that was processing on the killed worker ran again.
+    for key in killed["keys"]:
+        steps = [(t.start, t.finish, t.stimulus_id.rsplit("-", 1)[0])
+                 for t in lc.scheduler.story(key)]
+        lost = steps.index(("processing", "released", "handle-worker-cleanup"))
+        assert ("processing", "memory", "task-finished") in steps[lost:], steps
     table = rows(out / "sweep.csv")
     assert len(table) == 8
     # same numbers as the local pool: a retried seed restarts from its checkpoint or from scratch

@@ -204,7 +204,7 @@ def _gone(pid: int, timeout: float) -> bool:
 
 
 def test_live_viewer_loopback_throttle_and_close(arm, capsys):
-    viewer = LiveViewer(arm, max_fps=20)
+    viewer = LiveViewer(arm, max_fps=1)  # 1 s between updates: far more than two calls take
     try:
         pid = viewer.server_pid
         assert pid is not None and viewer.url.startswith("http://127.0.0.1:")
@@ -219,13 +219,15 @@ def test_live_viewer_loopback_throttle_and_close(arm, capsys):
         assert viewer.show([0.5, 0.5], [0.6, 0.4]) is True
         assert viewer.show([0.5, 0.6]) is False  # within 1/max_fps of the last update: dropped
         assert viewer.show([0.5, 0.6], force=True) is True
-        time.sleep(1 / 20 + 0.01)
-        assert viewer.show(np.array([0.1, 0.2]), np.array([0.2, 0.1])) is True
+        deadline = time.monotonic() + 60  # once 1/max_fps has passed, an update goes through
+        while not viewer.show(np.array([0.1, 0.2]), np.array([0.2, 0.1])):
+            assert time.monotonic() < deadline, "show() kept dropping updates"
+            time.sleep(0.05)
         with pytest.raises(ViewerError, match="nq=2"):
             viewer.show([0.1, 0.2, 0.3], force=True)
     finally:
         viewer.close()
-    assert _gone(pid, 5.0)
+    assert _gone(pid, 60.0)
     assert _port_free(web) and _port_free(zmq_port)
     viewer.close()  # twice is fine
     with pytest.raises(ViewerError, match="closed"):
@@ -241,7 +243,7 @@ def test_live_viewer_context_manager_and_connect(arm):
         assert not _gone(owner.server_pid, 0.2)
         assert owner.show([0.1, 0.1], force=True)
         pid = owner.server_pid
-    assert _gone(pid, 5.0)
+    assert _gone(pid, 60.0)
 
 
 def test_live_viewer_server_dies_with_its_parent(tmp_path):
@@ -263,8 +265,8 @@ def test_live_viewer_server_dies_with_its_parent(tmp_path):
         pid, url = int(line[0]), line[1]
         assert not _gone(pid, 0.1)
         parent.send_signal(signal.SIGTERM)
-        parent.wait(timeout=10)
-        assert _gone(pid, 5.0), "the meshcat server outlived its parent"
+        parent.wait(timeout=60)
+        assert _gone(pid, 60.0), "the meshcat server outlived its parent"
         assert _port_free(_port(url))
     finally:
         if parent.poll() is None:
