@@ -14,7 +14,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
-IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
+IN_CI = any(os.environ.get(v, "").lower() in ("1", "true", "yes") for v in ("CI", "FELTOOL_CI"))
 ALLOWED_SKIP = "(allowed skip)"  # a skip reason that names a fact of the machine, not a tool
 _skipped: list[str] = []
 
