@@ -20,10 +20,10 @@ import argparse
 
 import numpy as np
 import pinocchio as pin
-from feltool.contact import Contact
 from scipy.optimize import brentq
 
 from feltool.config import read_yaml
+from feltool.contact import Contact
 from feltool.gait_config import gait_spec, walker_from_raw
 from feltool.gait_design import design_gait
 from feltool.rmp import samples_demo

@@ -438,17 +438,22 @@ def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
 def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
     R, _ = exp.law.references(Qd, Qd)
     controlled = exp.law.tracking | exp.law.stabilizing
+    nv = log.q_end.shape[0]
+    # a walker's cycle that stopped (not walking) before its first sample logs no rows: its
+    # means are zero, not a reduction over nothing
+    mean = lambda X: np.abs(X).mean(axis=0) if len(X) else np.zeros(nv)  # noqa: E731
     with np.errstate(all="ignore"):
         err = np.abs(wrap(R - exp.law.quantity(log.q)))[:, controlled]
         return CycleOutcome(
-            theta_next, log.q_end, log.v_end, np.abs(log.u_fb).mean(axis=0),
-            np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)),
-            float(err.max()) if err.size else 0.0, float(np.abs(log.v).max()),
+            theta_next, log.q_end, log.v_end, mean(log.u_fb),
+            np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)) if len(log.q) else np.zeros(nv),
+            float(err.max()) if err.size else 0.0,
+            float(np.abs(log.v).max()) if log.v.size else 0.0,
             bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
                  and np.all(np.isfinite(log.q_end))),
             lambda: (log, Qd),
-            float(np.abs(log.u_rows[:, exp.law.stabilizing]).mean(axis=0).sum()),
-            float(np.abs(log.u_err).mean(axis=0).sum()),
+            float(mean(log.u_rows)[exp.law.stabilizing].sum()),
+            float(mean(log.u_err).sum()),
             limit_hits=getattr(log, "limit_hits", None))
 
 

@@ -304,6 +304,7 @@ class PhysicalLoop:
         n, nv = P.shape
         clock = W.phase == "clock"  # else touchdown or mechanical: the cycle ends at touchdowns
         n_max = n if clock else 3 * n
+        ns = n // W.steps_per_cycle  # samples per step (the last step takes the remainder)
         k_motors = W.B.shape[1]
         Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n_max, nv)) for _ in range(8))
         Tau, Force = np.zeros((n_max, k_motors)), np.zeros((n_max, 2))
@@ -318,7 +319,11 @@ class PhysicalLoop:
                 if not clock and len(impacts) >= W.steps_per_cycle:
                     break
                 k = m
-                jj = min(j, n - 1)
+                # a late touchdown holds the step's last sample (its segment of the cycle's
+                # samples; clock: the cycle's last), never the next step's post-impact samples
+                s_idx = len(impacts) % W.steps_per_cycle
+                last = clock or s_idx == W.steps_per_cycle - 1
+                jj = min(j, (n if last else (s_idx + 1) * ns) - 1)
                 label = len(impacts) % 2 if W.steps_per_cycle % 2 == 0 else 0
                 labels[k] = label
                 if W.phase == "mechanical":
