@@ -315,13 +315,35 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
         J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs,
                                  samples=getattr(log, "phase_index", None))
-        theta_next = exp.learner.step(theta, J, _impact_masked(exp, log))
+        E = _impact_masked(exp, log)
+        if exp.config.learning.error_estimate == "inverse_dynamics" and \
+                getattr(log, "inertial", None) is not None:
+            E = E + _impact_masked(exp, log, log.inertial)
+        A = getattr(log, "allocation", None)
+        if exp.config.learning.error_space == "motors" and A is not None and len(A):
+            theta_next = _motor_step(exp, theta, A, J, E)
+        else:
+            theta_next = exp.learner.step(theta, J, E)
     out = _outcome(exp, log, log.Qd, theta_next)
     out.fall, out.impacts = log.fall, list(log.impacts)
     if getattr(log, "steps", None) is not None:
         out.contact = contact_metrics(log, exp)
         out.limit_hits = (np.zeros(len(exp.joints), int), _motor_hits(exp, log))
     return out
+
+
+def _motor_step(exp: Experiment, theta: np.ndarray, A: np.ndarray, J: np.ndarray,
+                E: np.ndarray) -> np.ndarray:
+    r"""The update (eq. 3.6) with the error and the Jacobian in motor torques: the motors
+    apply :math:`u = A(q)\,(\tau_{ff} + u_{fb})` (the allocation, :mod:`feltool.walking`), so
+    the feedforward's error is :math:`A e` and its sensitivity :math:`A J`; the part of a
+    generalized force that the contact absorbs (:math:`A\tau = 0`) is no error and no
+    gradient. ``A`` ``(n, k, nv)``, ``J`` ``(n, nv, P)``, ``E`` ``(n, nv)``."""
+    Jm = np.einsum("kmr,krp->kmp", A, J)
+    Em = np.einsum("kmr,kr->km", A, E)
+    grad = np.einsum("km,kmp->p", Em, Jm)
+    hess = np.einsum("kmp,kms->ps", Jm, Jm) if exp.learner.update == "gauss_newton" else None
+    return exp.learner.apply(theta, grad, hess)
 
 
 def contact_metrics(log, exp: Experiment) -> dict[str, float]:
@@ -337,7 +359,13 @@ def contact_metrics(log, exp: Experiment) -> dict[str, float]:
     work = float(np.abs(log.tau * log.v[:, motors]).sum() * dt) if len(log.q) else 0.0
     law = exp.law
     stab = law.stabilizing
-    err = wrap(law.quantity(log.q)[:, stab] - law.targets[stab]) if len(log.q) else np.zeros(1)
+    if not stab.any() and exp.hybrid.reference:  # a learned joint holding a designed motion
+        rows = np.array(sorted(exp.hybrid.reference))
+        err = (wrap(law.quantity(log.q)[:, rows] - log.reference[:, rows]) if len(log.q)
+               else np.zeros(1))
+    else:
+        err = (wrap(law.quantity(log.q)[:, stab] - law.targets[stab]) if len(log.q)
+               else np.zeros(1))
     done = [s for s in steps if np.isfinite(s.length)]
     finite = lambda xs: [x for x in xs if np.isfinite(x)]  # noqa: E731
     clear = finite([s.min_clearance for s in steps])
@@ -396,13 +424,14 @@ def _motor_hits(exp: Experiment, log) -> np.ndarray:
     return hits
 
 
-def _impact_masked(exp: Experiment, log) -> np.ndarray:
-    """The cycle's error torques with the rows within ``learning.impact_window_s`` after each
-    impact zeroed (the learning signal only; the metrics keep every sample)."""
+def _impact_masked(exp: Experiment, log, E: np.ndarray | None = None) -> np.ndarray:
+    """The cycle's error torques (or ``E``) with the rows within ``learning.impact_window_s``
+    after each impact zeroed (the learning signal only; the metrics keep every sample)."""
     window = exp.config.learning.impact_window_s
+    E = log.u_err if E is None else E
     if window <= 0 or not log.impacts:
-        return log.u_err
-    E = log.u_err.copy()
+        return E
+    E = E.copy()
     n = int(round(window / exp.config.dt))
     for k, _, _ in log.impacts:  # k: first sample after the impact; the cycle's last impact
         k %= len(E)              # starts the next cycle, whose first samples follow it
