@@ -274,9 +274,9 @@ class LearnConfig(Strict):
         "or perturbed: the demo's fit plus a random perturbation from the seed whose forward "
         "trajectory has the RMS perturbation_rad (and the goal moved by goal_spread at most).")
     perturbation_rad: NonNegFloat = Field(0.05, le=MAX_ANGLE, description="init perturbed: RMS "
-        "over the cycle of the perturbation of the forward trajectory, in [rad] (the weights' "
-        "perturbation ~ N(0, 1) per basis function, scaled to it); at most "
-        f"{MAX_ANGLE:g}.")
+        "over the cycle of the perturbation of the forward trajectory, in [rad] (a smooth "
+        "random motion: the cycle's first three harmonics with N(0, 1) coefficients from the "
+        f"seed, scaled to it, fitted into the RMP); at most {MAX_ANGLE:g}.")
     weight_scale: NonNegFloat = Field(0.3, le=MAX_WEIGHT_SCALE, description="Random initial "
                                       "weights ~ N(0, s^2) with s = weight_scale * max |w| over "
                                       "the demo-fitted primitives [-]; at most "

@@ -100,14 +100,24 @@ class Experiment:
                 theta[sl] = 0.0
                 theta[sl.stop - 1] = g_center
             elif kind == "perturbed":
-                # the demo's fit plus weights ~ N(0, 1) scaled so that the forward trajectory
-                # moves by w_std [rad] RMS over the cycle (a sample demo's fitted weights are
-                # huge: a scale relative to them means nothing in radians)
+                # the demo's fit plus the fit of a smooth random motion: the first three
+                # harmonics of the cycle with N(0, 1) coefficients, scaled to w_std [rad] RMS
+                # (a sample demo's fitted weights are huge: a scale relative to them means
+                # nothing in radians, and random weights would be a rough, violent motion)
                 prim = next(self.primitives.primitives[i] for i, s in
                             self.primitives.slices.items() if s == sl)
-                dw = rng.normal(0.0, 1.0, nw)
-                rms = float(np.sqrt(np.mean((prim.Xq[:, :-1] @ dw) ** 2)))
-                theta[sl.start:sl.stop - 1] += dw * (w_std / rms if rms > 0 else 0.0)
+                n = prim.n_steps
+                phi = 2.0 * np.pi * np.arange(n) / n
+                c = rng.normal(0.0, 1.0, (3, 2))
+                h = np.arange(1, 4)[:, None]
+                d = c[:, :1] * np.cos(h * phi) + c[:, 1:] * np.sin(h * phi)
+                dd = h * (-c[:, :1] * np.sin(h * phi) + c[:, 1:] * np.cos(h * phi))
+                ddd = -h**2 * (c[:, :1] * np.cos(h * phi) + c[:, 1:] * np.sin(h * phi))
+                w = 2.0 * np.pi / (n * self.config.dt)  # d phi / dt [rad/s]
+                scale = w_std / float(np.sqrt(np.mean(d.sum(0) ** 2)))
+                dtheta = prim.fit(scale * d.sum(0), scale * w * dd.sum(0),
+                                  scale * w**2 * ddd.sum(0), phi, goal=0.0)
+                theta[sl] += dtheta
                 theta[sl.stop - 1] += rng.uniform(-g_spread, g_spread)
         return theta
 
@@ -290,10 +300,13 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
             if jc.follow_demo and jc.learn is None:
                 fixed[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
             elif jc.follow_demo:
+                # the feedback holds the demo; the forward trajectory is the demo plus the
+                # learned RMP, a correction that starts at zero (init demo) or perturbed
                 referenced[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
+                thetas[i] = np.zeros(prim.n_params)
         else:
             thetas[i] = np.zeros(prim.n_params)
-    primitives = PrimitiveSet(prims, nv, fixed)
+    primitives = PrimitiveSet(prims, nv, fixed, referenced)
     if fixed and (cfg.backend == "compiled" or cfg.learning.sensitivity == "casadi"
                   or cfg.learning.step == "per_step"):
         raise ConfigError([(f"joints.{joints[i]}.follow_demo", "needs backend pinocchio or "
