@@ -18,7 +18,7 @@ def energy(model, data, q, v) -> float:
     return float(ke - m * model.gravity.linear @ c)
 
 
-@pytest.mark.parametrize("config", [
+@pytest.mark.parametrize("config", ["configs/gaits/three_link_walker.yaml",
                                     "configs/gaits/five_link_walker.yaml"])
 def test_energy_budget_closes_per_stride(config):
     exp = load_experiment(config)
@@ -46,4 +46,5 @@ def test_energy_budget_closes_per_stride(config):
     budget = work - lost - (e1 - e0)
     scale = abs(work) + abs(lost) + abs(e1 - e0)
     assert lost > 0.0
-    assert abs(budget) <= 0.01 * scale, (work, lost, e1 - e0, budget)
+    # the acceptance asks for 1 %; the integration closes it to ~1e-9 (RK4, 1 ms sub-steps)
+    assert abs(budget) <= 1e-6 * scale, (work, lost, e1 - e0, budget)
