@@ -56,3 +56,37 @@ def test_perturbed_init_is_in_radians_and_seeded():
     # the unperturbed forward trajectory is the design itself (follow_demo with learn)
     _, ref = next(iter(exp.hybrid.reference.items())), exp.hybrid.reference[i]
     np.testing.assert_allclose(Q0, ref[0], atol=1e-12)
+
+
+def test_inverse_dynamics_error_is_the_feedforwards_motor_error():
+    """``error_estimate: inverse_dynamics``: with the motors applying u = A (tau_ff + u_fb),
+    the estimate A (u_fb + M (a_r - a)) is exactly u* - A tau_ff, u* the motor torques that give
+    the reference's acceleration a_r (found here by solving the contact dynamics for them)."""
+    from feltool.walking import ContactChecks, PhysicalWalker
+    from tests.test_walking import five_link
+
+    rng = np.random.default_rng(3)
+    w = five_link()
+    W = PhysicalWalker(w, ContactChecks())
+    c, nv = W.contact, w.model.nv
+    q0 = np.zeros(nv)
+    q0[3:] = rng.uniform(-0.4, 0.4, nv - 3)
+    q0[[4, 6]] = np.abs(q0[[4, 6]])  # knees bent forward
+    q, v, _ = W.complete(q0, rng.normal(0, 0.5, nv), np.zeros(nv))
+    k = W.B.shape[1]
+    acc = lambda u: c.stance(q, v, W.B @ u, W.stance).a  # noqa: E731
+    u_star = rng.normal(0, 20, k)
+    a_r = acc(u_star)
+    tau_ff, u_fb = rng.normal(0, 20, nv), rng.normal(0, 5, nv)
+    A = W.allocation_matrix(q)
+    a = acc(A @ (tau_ff + u_fb))
+    import pinocchio as pin
+
+    M = pin.crba(c.model, c.data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    estimate = A @ (u_fb + M @ (a_r - a))
+    # u* recovered independently: the acceleration is affine in the motor torques
+    S = np.stack([acc(e) - acc(np.zeros(k)) for e in np.eye(k)], axis=1)
+    u_solved, *_ = np.linalg.lstsq(S, a_r - acc(np.zeros(k)), rcond=None)
+    np.testing.assert_allclose(u_solved, u_star, atol=1e-8)
+    np.testing.assert_allclose(estimate, u_solved - A @ tau_ff, atol=1e-7)
