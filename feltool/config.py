@@ -627,6 +627,10 @@ class WalkingConfig(Strict):
         "stabilisation, used with impact: rigid); default off.")
     poincare: bool = Field(True, description="After learning, find the step-to-step map's fixed "
                            "point and its eigenvalues (summary.json: poincare).")
+    settle_cycles: int = Field(0, ge=0, le=1000, description="Physical walkers: cycles walked "
+        "with the unperturbed parameters (the design, nothing learned, not counted) before "
+        "learning starts, so that learning starts on the loop's own limit cycle rather than "
+        "with the transient from the designed start state.")
 
     @model_validator(mode="before")
     @classmethod

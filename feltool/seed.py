@@ -101,6 +101,16 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
     if exp.hybrid is not None:
         q, v = exp.hybrid.initial_state(Qd, Vd)
+        settle = cfg.walking.settle_cycles if cfg.walking is not None and \
+            cfg.walking.physical else 0
+        if settle:  # onto the unperturbed gait's limit cycle, nothing learned or counted
+            P0, Pv0, Pa0 = exp.primitives.desired(exp.theta_demo)
+            q, v = exp.hybrid.initial_state(P0, Pv0)
+            for _ in range(settle):
+                log = exp.hybrid.run_cycle(exp.dynamics, q, v, P0, Pv0, Pa0)
+                if log.fall:
+                    break
+                q, v = log.q_end, log.v_end
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
     reason, start, wall_before = None, 1, 0.0
     run_cycle = _cycle_runner(exp, theta)

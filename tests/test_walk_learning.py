@@ -13,8 +13,8 @@ from feltool.seed import run_seed
 # config, learned joint, cycles, bound on last/first summed feedback (every seed)
 SHIPPED = [
     ("configs/gaits/five_link_walker.yaml", "base_pitch", 5, 0.35),
-    ("configs/gaits/compass_gait.yaml", "hip", 5, 0.35),
-    ("configs/gaits/three_link_walker.yaml", "base_pitch", 5, 0.75),
+    ("configs/gaits/compass_gait.yaml", "hip", 5, 0.6),
+    ("configs/gaits/three_link_walker.yaml", "base_pitch", 5, 0.6),
 ]
 
 
