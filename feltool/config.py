@@ -269,8 +269,14 @@ class Target(Strict):
 class LearnConfig(Strict):
     """Marks a joint's RMP as learned by FEL and says how its parameters start."""
 
-    init: Literal["random", "demo", "zero"] = Field("random", description="Initial weights: "
-                                                   "random (from the seed), the demo's fit, or zero.")
+    init: Literal["random", "demo", "zero", "perturbed"] = Field(
+        "random", description="Initial weights: random (from the seed), the demo's fit, zero, "
+        "or perturbed: the demo's fit plus a random perturbation from the seed whose forward "
+        "trajectory has the RMS perturbation_rad (and the goal moved by goal_spread at most).")
+    perturbation_rad: NonNegFloat = Field(0.05, le=MAX_ANGLE, description="init perturbed: RMS "
+        "over the cycle of the perturbation of the forward trajectory, in [rad] (a smooth "
+        "random motion: the cycle's first three harmonics with N(0, 1) coefficients from the "
+        f"seed, scaled to it, fitted into the RMP); at most {MAX_ANGLE:g}.")
     weight_scale: NonNegFloat = Field(0.3, le=MAX_WEIGHT_SCALE, description="Random initial "
                                       "weights ~ N(0, s^2) with s = weight_scale * max |w| over "
                                       "the demo-fitted primitives [-]; at most "
@@ -302,7 +308,10 @@ class JointConfig(Strict):
                            f"+-{MAX_ANGLE:g}.")
     follow_demo: bool = Field(False, description="The forward trajectory is the demonstration "
         "itself at the control rate, not its RMP fit (e.g. a designed gait's joints: an impact's "
-        "velocity jump is beyond a smooth periodic RMP); not with learn.")
+        "velocity jump is beyond a smooth periodic RMP). With learn (a physical walker's track "
+        "joint): the feedback's reference (and the mechanical phase) follows the demonstration, "
+        "the feedforward the learned RMP, so that FEL learns the feedforward of the designed "
+        "motion from a perturbed start.")
 
     @model_validator(mode="after")
     def _role_fields(self) -> JointConfig:
@@ -319,8 +328,10 @@ class JointConfig(Strict):
                 self.learn is None or self.learn.init == "demo"):
             problems.append(f"a '{self.role}' joint needs a 'demo' or 'learn' (with init random "
                             "or zero) to define its RMP")
-        if self.follow_demo and (self.demo is None or self.learn is not None):
-            problems.append("'follow_demo' needs a 'demo' and no 'learn'")
+        if self.follow_demo and self.demo is None:
+            problems.append("'follow_demo' needs a 'demo'")
+        if self.follow_demo and self.learn is not None and self.role != "track":
+            problems.append("'follow_demo' with 'learn' needs role 'track'")
         if self.role == "locked" and (self.learn or self.demo or self.gains):
             problems.append("a 'locked' joint takes only 'posture'")
         if problems:
@@ -484,6 +495,16 @@ class LearningConfig(Strict):
         "velocity jump makes a feedback spike that no smooth RMP can remove) [s]; 0 = off.")
     model: ModelLearningConfig | None = Field(None, description="Also learn an inverse-model "
         "correction by classic FEL (docs/model_learning.md); default off.")
+    error_estimate: Literal["feedback", "inverse_dynamics"] = Field("feedback", description=
+        "Physical walkers: the feedforward's error is estimated by the feedback (eq. 3.6), or "
+        "by the feedback plus the inertial term M (a_r - a) of the reference's acceleration "
+        "against the walker's (inverse_dynamics: the feedforward's error itself, also when the "
+        "feedback's bandwidth, bounded by the torque limits, is below the gait's; "
+        "docs/biped.md).")
+    error_space: Literal["generalized", "motors"] = Field("generalized", description="Physical "
+        "walkers: the error signal and the feedforward's Jacobian in generalized forces "
+        "(generalized), or both mapped through the allocation onto the motors (motors: the "
+        "torques the motors apply, the part of the feedforward that acts; docs/biped.md).")
 
 
 class ILCConfig(Strict):
@@ -667,6 +688,10 @@ class WalkingConfig(Strict):
         "stabilisation, used with impact: rigid); default off.")
     poincare: bool = Field(True, description="After learning, find the step-to-step map's fixed "
                            "point and its eigenvalues (summary.json: poincare).")
+    settle_cycles: int = Field(0, ge=0, le=1000, description="Physical walkers: cycles walked "
+        "with the unperturbed parameters (the design, nothing learned, not counted) before "
+        "learning starts, so that learning starts on the loop's own limit cycle rather than "
+        "with the transient from the designed start state.")
 
     @model_validator(mode="before")
     @classmethod

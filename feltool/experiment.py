@@ -101,6 +101,26 @@ class Experiment:
             elif kind == "zero":
                 theta[sl] = 0.0
                 theta[sl.stop - 1] = g_center
+            elif kind == "perturbed":
+                # the demo's fit plus the fit of a smooth random motion: the first three
+                # harmonics of the cycle with N(0, 1) coefficients, scaled to w_std [rad] RMS
+                # (a sample demo's fitted weights are huge: a scale relative to them means
+                # nothing in radians, and random weights would be a rough, violent motion)
+                prim = next(self.primitives.primitives[i] for i, s in
+                            self.primitives.slices.items() if s == sl)
+                n = prim.n_steps
+                phi = 2.0 * np.pi * np.arange(n) / n
+                c = rng.normal(0.0, 1.0, (3, 2))
+                h = np.arange(1, 4)[:, None]
+                d = c[:, :1] * np.cos(h * phi) + c[:, 1:] * np.sin(h * phi)
+                dd = h * (-c[:, :1] * np.sin(h * phi) + c[:, 1:] * np.cos(h * phi))
+                ddd = -h**2 * (c[:, :1] * np.cos(h * phi) + c[:, 1:] * np.sin(h * phi))
+                w = 2.0 * np.pi / (n * self.config.dt)  # d phi / dt [rad/s]
+                scale = w_std / float(np.sqrt(np.mean(d.sum(0) ** 2)))
+                dtheta = prim.fit(scale * d.sum(0), scale * w * dd.sum(0),
+                                  scale * w**2 * ddd.sum(0), phi, goal=0.0)
+                theta[sl] += dtheta
+                theta[sl.stop - 1] += rng.uniform(-g_spread, g_spread)
         return theta
 
     def split_parameters(self, theta: np.ndarray) -> dict[str, np.ndarray]:
@@ -265,6 +285,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     thetas: dict[int, np.ndarray] = {}
     fine_t = np.linspace(0.0, T, 2000, endpoint=False)
     fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    referenced: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for i, name in enumerate(joints):
         jc = cfg.joints[name]
         settings = cfg.primitives.model_dump()
@@ -278,11 +299,16 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
             q, v, a = _demo_trajectory(d, T, fine_t)
             goal = float(np.mean(q)) if d.kind == "samples" else d.mean
             thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=goal)
-            if jc.follow_demo:
+            if jc.follow_demo and jc.learn is None:
                 fixed[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
+            elif jc.follow_demo:
+                # the feedback holds the demo; the forward trajectory is the demo plus the
+                # learned RMP, a correction that starts at zero (init demo) or perturbed
+                referenced[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
+                thetas[i] = np.zeros(prim.n_params)
         else:
             thetas[i] = np.zeros(prim.n_params)
-    primitives = PrimitiveSet(prims, nv, fixed)
+    primitives = PrimitiveSet(prims, nv, fixed, referenced)
     if fixed and (cfg.backend == "compiled" or cfg.learning.sensitivity == "casadi"
                   or cfg.learning.step == "per_step"):
         raise ConfigError([(f"joints.{joints[i]}.follow_demo", "needs backend pinocchio or "
@@ -344,8 +370,9 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         rates += [L.rates.weights] * (len(idx) - 1) + [L.rates.goal]
         center = jc.learn.goal_center if jc.learn.goal_center is not None else (
             float(centers[i]) if stabilizing[i] else float(goals[i]))
-        init.append((sl, jc.learn.weight_scale * w_ref, center, jc.learn.goal_spread,
-                     jc.learn.init))
+        scale = (jc.learn.perturbation_rad if jc.learn.init == "perturbed"
+                 else jc.learn.weight_scale * w_ref)
+        init.append((sl, scale, center, jc.learn.goal_spread, jc.learn.init))
     if L.error == "stabilizing":
         error_mask = stabilizing.astype(float)
     elif L.error == "all_feedback":
@@ -414,10 +441,14 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
             if cfg.plant is not None:
                 raise ConfigError([("plant", "not supported for a physical walker yet")], src)
             hybrid = physical_loop(cfg, wm, law, dynamics, joints, error_mask, src)
+            hybrid.reference = dict(referenced)
         else:
             hybrid = HybridLoop(plant, law, _allocation(cfg, robot, joints, src),
                                 _walker(cfg, robot, joints, src), actuated, dt,
                                 cfg.sim.substeps, cfg.sim.integrator, error_mask)
+    if referenced and (wm is None or hybrid is None):
+        raise ConfigError([(f"joints.{joints[i]}.follow_demo", "with learn: only for a "
+                            "physical walker (walking.feet)") for i in referenced], src)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
                      init, source, hybrid, plant, model_learner)
     if L.sensitivity == "casadi" and learner.n_learned:

@@ -242,13 +242,17 @@ class PrimitiveSet:
         nv: Number of velocity coordinates of the model.
         fixed: ``{joint velocity index: (q, v, a)}``: joints whose forward trajectory is given
             sample by sample (``follow_demo``, never learned) instead of by their RMP.
+        offsets: ``{joint velocity index: (q, v, a)}``: joints whose forward trajectory is the
+            given samples plus their (learned) RMP's output (``follow_demo`` with ``learn``).
     """
 
     def __init__(self, primitives: dict[int, RhythmicPrimitive], nv: int,
-                 fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None):
+                 fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
+                 offsets: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None):
         self.primitives = dict(sorted(primitives.items()))
         self.nv = nv
         self.fixed = dict(fixed or {})
+        self.offsets = dict(offsets or {})
         self.n_steps = next(iter(self.primitives.values())).n_steps
         self.slices: dict[int, slice] = {}
         start = 0
@@ -267,4 +271,9 @@ class PrimitiveSet:
                 continue
             th = theta[self.slices[i]]
             Q[:, i], V[:, i], A[:, i] = prim.Xq @ th, prim.Xv @ th, prim.Xa @ th
+            if i in self.offsets:  # a learned correction on top of a given motion
+                q, v, a = self.offsets[i]
+                Q[:, i] += q
+                V[:, i] += v
+                A[:, i] += a
         return Q, V, A

@@ -103,6 +103,16 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
     if exp.hybrid is not None:
         q, v = exp.hybrid.initial_state(Qd, Vd)
+        settle = cfg.walking.settle_cycles if cfg.walking is not None and \
+            cfg.walking.physical else 0
+        if settle:  # onto the unperturbed gait's limit cycle, nothing learned or counted
+            P0, Pv0, Pa0 = exp.primitives.desired(exp.theta_demo)
+            q, v = exp.hybrid.initial_state(P0, Pv0)
+            for _ in range(settle):
+                log = exp.hybrid.run_cycle(exp.dynamics, q, v, P0, Pv0, Pa0)
+                if log.fall:
+                    break
+                q, v = log.q_end, log.v_end
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
     reason, start, wall_before = None, 1, 0.0
     run_cycle = _cycle_runner(exp, theta, seed)
@@ -326,13 +336,35 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
         J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs,
                                  samples=getattr(log, "phase_index", None))
-        theta_next = exp.learner.step(theta, J, _impact_masked(exp, log))
+        E = _impact_masked(exp, log)
+        if exp.config.learning.error_estimate == "inverse_dynamics" and \
+                getattr(log, "inertial", None) is not None:
+            E = E + _impact_masked(exp, log, log.inertial)
+        A = getattr(log, "allocation", None)
+        if exp.config.learning.error_space == "motors" and A is not None and len(A):
+            theta_next = _motor_step(exp, theta, A, J, E)
+        else:
+            theta_next = exp.learner.step(theta, J, E)
     out = _outcome(exp, log, log.Qd, theta_next)
     out.fall, out.impacts = log.fall, list(log.impacts)
     if getattr(log, "steps", None) is not None:
         out.contact = contact_metrics(log, exp)
         out.limit_hits = (np.zeros(len(exp.joints), int), _motor_hits(exp, log))
     return out
+
+
+def _motor_step(exp: Experiment, theta: np.ndarray, A: np.ndarray, J: np.ndarray,
+                E: np.ndarray) -> np.ndarray:
+    r"""The update (eq. 3.6) with the error and the Jacobian in motor torques: the motors
+    apply :math:`u = A(q)\,(\tau_{ff} + u_{fb})` (the allocation, :mod:`feltool.walking`), so
+    the feedforward's error is :math:`A e` and its sensitivity :math:`A J`; the part of a
+    generalized force that the contact absorbs (:math:`A\tau = 0`) is no error and no
+    gradient. ``A`` ``(n, k, nv)``, ``J`` ``(n, nv, P)``, ``E`` ``(n, nv)``."""
+    Jm = np.einsum("kmr,krp->kmp", A, J)
+    Em = np.einsum("kmr,kr->km", A, E)
+    grad = np.einsum("km,kmp->p", Em, Jm)
+    hess = np.einsum("kmp,kms->ps", Jm, Jm) if exp.learner.update == "gauss_newton" else None
+    return exp.learner.apply(theta, grad, hess)
 
 
 def contact_metrics(log, exp: Experiment) -> dict[str, float]:
@@ -348,7 +380,13 @@ def contact_metrics(log, exp: Experiment) -> dict[str, float]:
     work = float(np.abs(log.tau * log.v[:, motors]).sum() * dt) if len(log.q) else 0.0
     law = exp.law
     stab = law.stabilizing
-    err = wrap(law.quantity(log.q)[:, stab] - law.targets[stab]) if len(log.q) else np.zeros(1)
+    if not stab.any() and exp.hybrid.reference:  # a learned joint holding a designed motion
+        rows = np.array(sorted(exp.hybrid.reference))
+        err = (wrap(law.quantity(log.q)[:, rows] - log.reference[:, rows]) if len(log.q)
+               else np.zeros(1))
+    else:
+        err = (wrap(law.quantity(log.q)[:, stab] - law.targets[stab]) if len(log.q)
+               else np.zeros(1))
     done = [s for s in steps if np.isfinite(s.length)]
     finite = lambda xs: [x for x in xs if np.isfinite(x)]  # noqa: E731
     clear = finite([s.min_clearance for s in steps])
@@ -407,13 +445,14 @@ def _motor_hits(exp: Experiment, log) -> np.ndarray:
     return hits
 
 
-def _impact_masked(exp: Experiment, log) -> np.ndarray:
-    """The cycle's error torques with the rows within ``learning.impact_window_s`` after each
-    impact zeroed (the learning signal only; the metrics keep every sample)."""
+def _impact_masked(exp: Experiment, log, E: np.ndarray | None = None) -> np.ndarray:
+    """The cycle's error torques (or ``E``) with the rows within ``learning.impact_window_s``
+    after each impact zeroed (the learning signal only; the metrics keep every sample)."""
     window = exp.config.learning.impact_window_s
+    E = log.u_err if E is None else E
     if window <= 0 or not log.impacts:
-        return log.u_err
-    E = log.u_err.copy()
+        return E
+    E = E.copy()
     n = int(round(window / exp.config.dt))
     for k, _, _ in log.impacts:  # k: first sample after the impact; the cycle's last impact
         k %= len(E)              # starts the next cycle, whose first samples follow it
@@ -450,17 +489,22 @@ def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
 def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
     R, _ = exp.law.references(Qd, Qd)
     controlled = exp.law.tracking | exp.law.stabilizing
+    nv = log.q_end.shape[0]
+    # a walker's cycle that stopped (not walking) before its first sample logs no rows: its
+    # means are zero, not a reduction over nothing
+    mean = lambda X: np.abs(X).mean(axis=0) if len(X) else np.zeros(nv)  # noqa: E731
     with np.errstate(all="ignore"):
         err = np.abs(wrap(R - exp.law.quantity(log.q)))[:, controlled]
         return CycleOutcome(
-            theta_next, log.q_end, log.v_end, np.abs(log.u_fb).mean(axis=0),
-            np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)),
-            float(err.max()) if err.size else 0.0, float(np.abs(log.v).max()),
+            theta_next, log.q_end, log.v_end, mean(log.u_fb),
+            np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)) if len(log.q) else np.zeros(nv),
+            float(err.max()) if err.size else 0.0,
+            float(np.abs(log.v).max()) if log.v.size else 0.0,
             bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
                  and np.all(np.isfinite(log.q_end))),
             lambda: (log, Qd),
-            float(np.abs(log.u_rows[:, exp.law.stabilizing]).mean(axis=0).sum()),
-            float(np.abs(log.u_err).mean(axis=0).sum()),
+            float(mean(log.u_rows)[exp.law.stabilizing].sum()),
+            float(mean(log.u_err).sum()),
             limit_hits=getattr(log, "limit_hits", None))
 
 

@@ -208,6 +208,11 @@ class PhysicalWalker:
 
     def allocate(self, q: np.ndarray, tau_w: np.ndarray) -> np.ndarray:
         """Motor torques ``(k,)`` in [N m] for the wanted generalized force ``tau_w``."""
+        return self.allocation_matrix(q) @ tau_w
+
+    def allocation_matrix(self, q: np.ndarray) -> np.ndarray:
+        """``A = (B^T W B)^{-1} B^T W``, ``(k, nv)``: motor torques per wanted generalized
+        force at ``q``."""
         c = self.contact
         M = pin.crba(c.model, c.data, q)
         M = np.triu(M) + np.triu(M, 1).T
@@ -216,7 +221,7 @@ class PhysicalWalker:
         MiJ = Mi @ J.T
         W = Mi - MiJ @ np.linalg.solve(J @ MiJ, MiJ.T)
         BW = self.B.T @ W
-        return np.linalg.solve(BW @ self.B, BW @ tau_w)
+        return np.linalg.solve(BW @ self.B, BW)
 
     def com_x(self, q: np.ndarray, v: np.ndarray) -> tuple[float, float]:
         """The centre of mass's horizontal position over the stance foot in [m] and its rate
@@ -239,11 +244,15 @@ class PhysicalWalker:
 
 @dataclass
 class WalkLog:
-    """One cycle of the physical walker (generalized coordinates of the floating base).
+    r"""One cycle of the physical walker (generalized coordinates of the floating base).
 
     Like :class:`feltool.hybrid.HybridLog`; ``impacts`` are ``(step, True, step length [m])``,
     ``steps`` the per-step :class:`StepStats`, ``phase_index`` the RMP sample used at each
-    control step, ``tau`` the motor torques ``(n, k)`` [N m].
+    control step, ``tau`` the motor torques ``(n, k)`` [N m], ``allocation`` the allocation's
+    matrix ``(n, k, nv)`` at each control step (motor torques per generalized force),
+    ``reference`` the feedback's references ``(n, nv)`` [rad], ``inertial`` the inertial
+    term :math:`M(q)(\ddot q_r - \ddot q)` ``(n, nv)`` [N m] of the reference's acceleration
+    :math:`\ddot q_r` against the walker's.
     """
 
     q: np.ndarray
@@ -265,6 +274,9 @@ class WalkLog:
     force: np.ndarray | None = None
     torque_hits: np.ndarray | None = None
     not_walking: str | None = None
+    allocation: np.ndarray | None = None
+    reference: np.ndarray | None = None
+    inertial: np.ndarray | None = None
 
 
 class PhysicalLoop:
@@ -287,11 +299,26 @@ class PhysicalLoop:
         self.error_rows = np.zeros(nv) if error_rows is None else np.asarray(error_rows, float)
         self.allocation = None
         self._ends: dict = {}
+        #: ``{velocity index: (q, v, a)}`` sampled at the control rate: coordinates whose
+        #: feedback reference (and the mechanical phase) follows these samples (a designed
+        #: gait) while their forward trajectory, the feedforward's, is their learned RMP
+        self.reference: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def _referenced(self, P: np.ndarray, Pv: np.ndarray, Pa: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The reference trajectories: the forward ones with the :attr:`reference` rows."""
+        if not self.reference:
+            return P, Pv, Pa
+        R, Rv, Ra = P.copy(), Pv.copy(), Pa.copy()
+        for i, (q, v, a) in self.reference.items():
+            R[:, i], Rv[:, i], Ra[:, i] = q[:len(P)], v[:len(P)], a[:len(P)]
+        return R, Rv, Ra
 
     def initial_state(self, P: np.ndarray, Pv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Start on the desired trajectory, stabilized quantities on target, stance foot at the
         origin with zero velocity."""
-        q, v = self.law.consistent_state(P[0], Pv[0])
+        R, Rv, _ = self._referenced(P, Pv, Pv)
+        q, v = self.law.consistent_state(R[0], Rv[0])
         q, v, _ = self.walker.complete(q, v, np.zeros_like(v))
         return q, v
 
@@ -304,9 +331,13 @@ class PhysicalLoop:
         n, nv = P.shape
         clock = W.phase == "clock"  # else touchdown or mechanical: the cycle ends at touchdowns
         n_max = n if clock else 3 * n
+        ns = n // W.steps_per_cycle  # samples per step (the last step takes the remainder)
         k_motors = W.B.shape[1]
         Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n_max, nv)) for _ in range(8))
         Tau, Force = np.zeros((n_max, k_motors)), np.zeros((n_max, 2))
+        Alloc = np.zeros((n_max, k_motors, nv))
+        Ref, Inert = np.zeros((n_max, nv)), np.zeros((n_max, nv))
+        Rq, Rv, Ra = self._referenced(P, Pv, Pa)
         index = np.zeros(n_max, dtype=int)
         labels = np.zeros(n_max, dtype=int)
         hits = np.zeros(k_motors, int)
@@ -318,20 +349,31 @@ class PhysicalLoop:
                 if not clock and len(impacts) >= W.steps_per_cycle:
                     break
                 k = m
-                jj = min(j, n - 1)
+                # a late touchdown holds the step's last sample (its segment of the cycle's
+                # samples; clock: the cycle's last), never the next step's post-impact samples
+                s_idx = len(impacts) % W.steps_per_cycle
+                last = clock or s_idx == W.steps_per_cycle - 1
+                jj = min(j, (n if last else (s_idx + 1) * ns) - 1)
                 label = len(impacts) % 2 if W.steps_per_cycle % 2 == 0 else 0
                 labels[k] = label
                 if W.phase == "mechanical":
-                    jj, p, pv, pa = self._mechanical(q, v, P, Pv, Pa, len(impacts), label)
+                    jj, p, pv, pa, rp, rpv, rpa = self._mechanical(
+                        q, v, P, Pv, Pa, len(impacts), label, (Rq, Rv, Ra))
                 else:
-                    p, pv, pa = P[jj], Pv[jj], Pa[jj]
+                    p, pv, pa, rp, rpv, rpa = P[jj], Pv[jj], Pa[jj], Rq[jj], Rv[jj], Ra[jj]
                 index[k] = jj
                 qd, vd, ad = W.complete(*W.labelled(p, pv, pa, label))
                 Q[k], V[k], Qd[k], Vd[k], Ad[k] = q, v, qd, vd, ad
                 m += 1
-                r, rd = self.law.references(qd[None], vd[None])
+                if self.reference:
+                    qr, vr, ar = W.complete(*W.labelled(rp, rpv, rpa, label))
+                else:
+                    qr, vr, ar = qd, vd, ad
+                r, rd = self.law.references(qr[None], vr[None])
+                Ref[k] = r[0]
                 U[k], Urows[k], Uerr[k] = self.law.terms(q, v, r[0], rd[0], self.error_rows)
-                u = W.allocate(q, self.known.inverse(qd, vd, ad) + U[k])
+                Alloc[k] = W.allocation_matrix(q)
+                u = Alloc[k] @ (self.known.inverse(qd, vd, ad) + U[k])
                 over = np.abs(u) > W.checks.effort
                 if over.any() and W.checks.torques != "ignore":
                     hits += over
@@ -345,6 +387,11 @@ class PhysicalLoop:
                             "(sim.torque_limits: report; saturate clips it)", "torque")
                 Tau[k] = u
                 tau = W.B @ u
+                # the inertial part of the feedforward's error, M (a_r - a): what the feedback
+                # has not (yet) produced of the reference's acceleration (PhysicalLoop doc)
+                M = pin.crba(contact.model, contact.data, q)
+                M = np.triu(M) + np.triu(M, 1).T
+                Inert[k] = M @ (ar - contact.stance(q, v, tau, W.stance).a)
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
                 ended = False
                 for i_sub in range(self.substeps):
@@ -375,25 +422,32 @@ class PhysicalLoop:
         sl = slice(0, m)
         return WalkLog(Q[sl], V[sl], U[sl], q, v, Qd[sl], Vd[sl], Ad[sl], labels[sl],
                        impacts, fall, Urows[sl], Uerr[sl], steps, index[sl], Tau[sl], Force[sl],
-                       hits, kind)
+                       hits, kind, Alloc[sl], Ref[sl], Inert[sl])
 
-    def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int):
+    def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int, ref=None):
         r"""The RMPs' values at the mechanical phase. The phase variable is the centre of
         mass's horizontal position over the stance foot, :math:`x` (the stance foot is at
         x = 0), whose desired values over the step's samples, :math:`x_d(t_i)`, must increase:
         the current :math:`x` gives the fractional sample :math:`t^*` with :math:`x_d(t^*) = x`
         (held at the step's ends), the samples are interpolated linearly at :math:`t^*`, the
         velocities scaled by :math:`r = \dot x / \dot x_d(t^*)` and the accelerations by
-        :math:`r^2` (the :math:`\dot r` term neglected). Returns ``(nearest sample, p, pv, pa)``."""
+        :math:`r^2` (the :math:`\dot r` term neglected). With ``ref`` (reference trajectories
+        ``(R, Rv, Ra)``) the phase follows the reference's centre of mass and the reference's
+        position, velocity and acceleration are returned too: ``(nearest sample, p, pv, pa, rp,
+        rpv, rpa)``;
+        else ``(nearest sample, p, pv, pa)``."""
         W = self.walker
+        out_ref = ref is not None
+        Ph, Phv, Pha = ref if out_ref else (P, Pv, Pa)
         n = len(P)
         ns = n // W.steps_per_cycle
         i0 = (step % W.steps_per_cycle) * ns
-        key = (id(P), i0, label)
+        # keyed by content: a new cycle's arrays may reuse a freed array's id
+        key = (hash(Ph[i0:i0 + ns].tobytes()), hash(Phv[i0:i0 + ns].tobytes()), i0, label)
         if self._ends.get("key") != key:
             x, xv = np.empty(ns), np.empty(ns)
             for i in range(ns):
-                qd, vd, _ = W.complete(*W.labelled(P[i0 + i], Pv[i0 + i], Pa[i0 + i], label))
+                qd, vd, _ = W.complete(*W.labelled(Ph[i0 + i], Phv[i0 + i], Pha[i0 + i], label))
                 x[i], xv[i] = W.com_x(qd, vd)
             if np.any(np.diff(x) <= 0):
                 raise NotWalking("walking.phase: mechanical needs the desired centre of mass to "
@@ -408,7 +462,8 @@ class PhysicalLoop:
         lerp = lambda X: (1 - w) * X[i0 + a] + w * X[i0 + a + 1]  # noqa: E731
         x_rate = (1 - w) * xv[a] + w * xv[a + 1]
         rate = xc_rate / x_rate if x_rate > 1e-9 else 1.0
-        return i0 + int(round(f)), lerp(P), rate * lerp(Pv), rate**2 * lerp(Pa)
+        out = (i0 + int(round(f)), lerp(P), rate * lerp(Pv), rate**2 * lerp(Pa))
+        return out + (lerp(Ph), rate * lerp(Phv), rate**2 * lerp(Pha)) if out_ref else out
 
     def jacobian_derivatives(self, log: WalkLog) -> tuple:
         """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with

@@ -496,3 +496,43 @@ def test_follow_demo_gives_the_demonstration_itself():
     with pytest.raises(ConfigError) as err:
         build_experiment(raw)
     assert "joints.left_hip" in str(err.value) and "follow_demo" in str(err.value)
+
+
+def test_late_touchdown_holds_the_step_last_sample():
+    """phase: touchdown with two steps per cycle: a touchdown later than the nominal step holds
+    the first step's last sample; it never runs into the second step's samples (whose desired
+    velocities are the post-impact ones) before the impact."""
+    w = three_link()
+    walker = PhysicalWalker(w, ContactChecks(friction=5.0, effort=np.full(2, 1e4)), 2,
+                            "touchdown")
+    kp = np.array([0, 0, 4000.0, 400.0, 400.0])
+    C = np.eye(5)
+    C[4, 2] = 1.0
+    law = FeedbackLaw(C, kp, kp / 10, np.array([0, 0, 0, 0, 1], bool),
+                      np.array([0, 0, 1, 0, 0], bool), np.array([0, 0, 0.1, 0, 0]), {})
+    dyn = make_dynamics(w.model)
+    loop = PhysicalLoop(dyn, law, walker, 0.005, 2)
+    ns = 60  # samples per step; the touchdown comes after about 0.67 s, beyond 0.3 s
+    qd = np.array([0, 0, 0.1, -0.05, -0.4])
+    P, Z = np.tile(qd, (2 * ns, 1)), np.zeros((2 * ns, 5))
+    q, v = loop.initial_state(P, Z)
+    log = loop.run_cycle(dyn, q, v, P, Z, Z)
+    assert len(log.impacts) >= 1
+    k_td = log.impacts[0][0]
+    assert k_td > ns  # late
+    assert log.phase_index[:k_td].max() == ns - 1
+    if len(log.phase_index) > k_td:  # the second step starts at its first sample
+        assert log.phase_index[k_td] == ns
+
+
+def test_not_walking_before_the_first_sample_is_reported():
+    """A cycle that stops before its first sample (here the mechanical phase of a desired
+    centre of mass that does not move forward) is reported as not walking, no exception."""
+    from feltool.experiment import build_experiment
+    from feltool.seed import run_seed
+
+    exp = build_experiment(physical_config(phase="mechanical"))
+    res = run_seed(exp, 0, cycles=2)
+    assert res.summary["diverged"] and res.summary["cycles"] == 0
+    assert res.summary["walking"]["walked"] is False
+    assert res.summary["walking"]["not_walking"] == "phase"
