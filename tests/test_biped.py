@@ -251,13 +251,17 @@ def test_foot_placement_names_must_be_walking_angles():
 
 
 def test_rigid_impact_walker_learns_with_an_impact_window():
-    """configs/biped_torso_rigid.yaml, shortened: seed 1 walks 40 cycles with rigid impacts and
-    FEL reduces the summed feedback (full run, seeds 0-2 x 100 cycles: 0.73, 0.59, 0.56 of the
-    first cycle, docs/biped.md); the Poincaré analysis reports the eigenvalues."""
+    """configs/biped_torso_rigid.yaml, its documented run: every one of its seeds 0-2 walks 100
+    cycles with rigid impacts and FEL reduces the summed feedback (0.73, 0.59, 0.56 of the first
+    cycle, docs/biped.md; at 40 cycles seed 0 is still at 1.01, so the full length is run); the
+    Poincaré analysis reports the eigenvalues (seed 1)."""
+    exp = load_experiment(CONFIGS / "biped_torso_rigid.yaml", ["walking.poincare=false"])
+    for seed in range(3):
+        s = run_seed(exp, seed, 100).summary
+        assert s["diverged"] is False and s["cycles"] == 100, seed
+        assert s["fb_ratio"] <= 0.8, (seed, s["fb_ratio"])
     exp = load_experiment(CONFIGS / "biped_torso_rigid.yaml")
-    s = run_seed(exp, 1, 40).summary
-    assert s["diverged"] is False and s["cycles"] == 40
-    assert s["fb_ratio"] <= 0.8
+    s = run_seed(exp, 1, 5).summary
     assert len(s["poincare"]["eigenvalues_abs"]) == 6
 
 
