@@ -168,14 +168,21 @@ class Walker:
         return bool(self.guard_sign * (self.guard_row @ q - self.guard_value) >= 0.0)
 
     def fallen(self, q: np.ndarray, v: np.ndarray) -> str | None:
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
-            return "the state became non-finite"
-        if self.fall_row is not None:
-            angle = float(self.fall_row @ q)
-            if abs(angle) > self.fall_max:
-                return (f"the checked link's angle reached {angle:.3g} rad "
-                        f"(walking.fall.max_abs = {self.fall_max}): the robot fell")
-        return None
+        return fall_reason(q, v, self.fall_row, self.fall_max)
+
+
+def fall_reason(q: np.ndarray, v: np.ndarray, fall_row: np.ndarray | None,
+                fall_max: float) -> str | None:
+    """Why a walker fell (a non-finite state, or ``|fall_row @ q| > fall_max`` in [rad]), or
+    None. Shared by the pinned and the physical walker."""
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+        return "the state became non-finite"
+    if fall_row is not None:
+        angle = float(fall_row @ q)
+        if abs(angle) > fall_max:
+            return (f"the checked link's angle reached {angle:.3g} rad "
+                    f"(walking.fall.max_abs = {fall_max}): the robot fell")
+    return None
 
 
 @dataclass

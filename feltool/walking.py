@@ -42,6 +42,7 @@ from feltool.contact import Contact
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics
 from feltool.errors import RobotError
+from feltool.hybrid import fall_reason
 from feltool.walker_model import WalkerModel
 
 
@@ -232,14 +233,7 @@ class PhysicalWalker:
         return float(com[0] - foot[0]), float(c.data.vcom[0][0])
 
     def fallen(self, q: np.ndarray, v: np.ndarray) -> str | None:
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
-            return "the state became non-finite"
-        if self.fall_row is not None:
-            angle = float(self.fall_row @ q)
-            if abs(angle) > self.fall_max:
-                return (f"the checked link's angle reached {angle:.3g} rad "
-                        f"(walking.fall.max_abs = {self.fall_max}): the robot fell")
-        return None
+        return fall_reason(q, v, self.fall_row, self.fall_max)
 
 
 @dataclass
