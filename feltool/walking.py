@@ -42,7 +42,7 @@ from feltool.contact import Contact
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics
 from feltool.errors import RobotError
-from feltool.hybrid import fall_reason
+from feltool.hybrid import HybridLog, fall_reason
 from feltool.walker_model import WalkerModel
 
 
@@ -237,7 +237,7 @@ class PhysicalWalker:
 
 
 @dataclass
-class WalkLog:
+class WalkLog(HybridLog):
     r"""One cycle of the physical walker (generalized coordinates of the floating base).
 
     Like :class:`feltool.hybrid.HybridLog`; ``impacts`` are ``(step, True, step length [m])``,
@@ -249,19 +249,6 @@ class WalkLog:
     :math:`\ddot q_r` against the walker's.
     """
 
-    q: np.ndarray
-    v: np.ndarray
-    u_fb: np.ndarray
-    q_end: np.ndarray
-    v_end: np.ndarray
-    Qd: np.ndarray
-    Vd: np.ndarray
-    Ad: np.ndarray
-    stance: np.ndarray
-    impacts: list = field(default_factory=list)
-    fall: str | None = None
-    u_rows: np.ndarray | None = None
-    u_err: np.ndarray | None = None
     steps: list = field(default_factory=list)
     phase_index: np.ndarray | None = None
     tau: np.ndarray | None = None
