@@ -91,26 +91,29 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
               speed: float | None = None, step_length: float | None = None,
               slope: float | None = None, passive: bool = False, knots: int = 40,
               friction_margin: float = 0.85, torso_weight: float | None = None,
-              normal_force_margin: float = 0.05, clearance_margin_m: float = 0.002) -> GaitSpec:
+              normal_force_margin: float = 0.05, clearance_margin_m: float = 0.002,
+              torso: float | None = None, duration: float | None = None) -> GaitSpec:
     """The :class:`GaitSpec` of a config and the command line's choices.
 
-    The step's duration is the config's ``period_s`` over ``steps_per_cycle`` (free for a
-    passive gait); the friction cone is designed within ``friction_margin`` times the config's
+    The step's duration is ``duration`` [s], else the config's ``period_s`` over
+    ``steps_per_cycle`` (free for a passive gait); the friction cone is designed within ``friction_margin`` times the config's
     mu, the normal force ``normal_force_margin`` m g above ``walking.normal_force_min`` and the
     swing foot ``clearance_margin_m`` above the ground outside the scuffing zone (margins for
     tracking errors, none for a passive gait); the torso is ``base_pitch`` when the config
-    stabilizes it, at its ``target.value`` (``torso_weight``: the weight of its motion, default
-    GaitSpec's). Without speed or step length, the step length is 0.35 hip heights.
+    stabilizes it, at its ``target.value``, or at ``torso`` [rad] when given (``torso_weight``:
+    the weight of its motion, default GaitSpec's). Without speed or step length, the step length
+    is 0.35 hip heights.
     """
     stance = settings["stance"]
     joints = raw.get("joints") or {}
     pitch = joints.get(BASE_JOINTS[2]) if walker.base == list(BASE_JOINTS) else None
-    pitch_target = None
-    if isinstance(pitch, dict) and pitch.get("role") == "stabilize":
+    pitch_target = torso
+    if pitch_target is None and isinstance(pitch, dict) and pitch.get("role") == "stabilize":
         pitch_target = (pitch.get("target") or {}).get("value")
     period = raw.get("period_s")
-    duration = None
-    if not passive and period is not None:
+    if passive:
+        duration = None
+    elif duration is None and period is not None:
         duration = float(period) / settings["steps_per_cycle"]
     if not passive and speed is None and step_length is None:
         step_length = 0.35 * _hip_height(walker, stance)
@@ -140,7 +143,9 @@ def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: Gait
     """``raw`` with the designed gait: samples demos of its tracked, passive and stabilized joints
     (not the base's x and z, which follow from the stance foot; a stabilized torso's demo is its
     designed motion, the RMP's start with ``learn.init: demo``), ``period_s`` and the slope's
-    gravity.
+    gravity. Each of those joints follows its demo (``follow_demo``: the forward trajectory is
+    the design, not the RMP's smooth fit of its impact's velocity jump), except a learned joint
+    that is not tracked (its RMP starts from the fit).
 
     With ``steps_per_cycle: 1`` each demo is the step in stance-relative labels (a leg joint's
     trajectory then ends elsewhere than it starts: the other leg carries its label after the
@@ -175,6 +180,8 @@ def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: Gait
         i = walker.robot.v_index(name)
         jc["demo"] = {"kind": "samples", "q": [_num(x) for x in q[:, i]],
                       "v": [_num(x) for x in v[:, i]], "a": [_num(x) for x in a[:, i]]}
+        if jc.get("learn") is None or jc.get("role") == "track":
+            jc["follow_demo"] = True  # the design itself, not a smooth RMP's fit of it
     return out
 
 
@@ -182,8 +189,10 @@ def _num(x: float) -> float:
     return float(f"{float(x):.7g}")
 
 
-def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: str) -> None:
-    """Write ``config`` as YAML with a header of the gait's figures."""
+def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: str,
+                      check=None) -> None:
+    """Write ``config`` as YAML with a header of the gait's figures and, with ``check`` (a
+    :class:`feltool.gait_orbit.Verification`), of its walk in feltool's walker."""
     m = gait.metrics
     two = config.get("walking", {}).get("steps_per_cycle", 1) == 2
     labels = ("two steps in the first step's labels" if two
@@ -194,5 +203,12 @@ def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: s
               f"# min F_n {m['min_normal_force_mg']:.3g} mg, max |F_t|/F_n "
               f"{m['max_friction_ratio']:.3g}, impulse ratio {m['impulse_ratio']:.3g}; demos: "
               f"{labels} (kind: samples).\n")
+    if check is not None and check.poincare.get("fixed_point_found"):
+        header += (f"# In feltool's walker: walked {check.steps} steps of "
+                   f"{check.step_length_m:.4g} m in {check.step_duration_s:.4g} s, min F_n "
+                   f"{check.min_normal_force_mg:.3g} mg, max |F_t|/F_n "
+                   f"{check.max_friction_ratio:.3g}, Poincaré spectral radius "
+                   f"{check.poincare['spectral_radius']:.3g}; summed feedback on the demos' "
+                   f"orbit {check.feedback:.2g} N m.\n")
     text = yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=100)
     Path(path).write_text(header + text)

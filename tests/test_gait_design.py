@@ -265,7 +265,8 @@ def test_cli_writes_a_gait_config_and_fails_cleanly(tmp_path, capsys):
 
     out = tmp_path / "gait.yaml"
     assert main(["gait", "configs/gaits/compass_gait.yaml", "--step-length", "0.4", "--knots",
-                 "24", "--out", str(out), "--no-progress"]) == 0
+                 "24", "--duration", "0.6", "--demos", "knots", "--verify-steps", "2",
+                 "--out", str(out), "--no-progress"]) == 0
     text = capsys.readouterr().out
     for word in ("solver time", "iterations", "period", "speed", "step length",
                  "cost of transport", "min F_n", "max |F_t|/F_n", "constraint violation"):

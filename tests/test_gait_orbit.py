@@ -1,0 +1,178 @@
+"""A designed gait closed on feltool's own walker: the orbit's demos are a physical motion that the
+feedforward alone drives (checked with scipy's integrator on a constrained dynamics assembled
+here from Pinocchio's mass matrix, bias forces and foot Jacobian, and the motor allocation
+written here), the loop's feedback on them is zero, and `feltool gait` verifies a design in the
+walker before it writes anything."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.integrate import solve_ivp
+
+from feltool.config import read_yaml
+from feltool.experiment import build_experiment
+from feltool.gait_config import gait_config, gait_spec, walker_from_raw
+from feltool.gait_design import design_gait
+from feltool.gait_orbit import GaitNotWalking, close_on_orbit, verify_design
+
+COMPASS = Path("configs/gaits/compass_gait.yaml")
+
+
+def compass_design(knots: int = 24, rate_hz: int = 250):
+    """The compass gait's config (a coarse design, a coarser control rate: quick) with its
+    collocation knots as demos."""
+    raw = read_yaml(COMPASS)
+    raw["sim"]["rate_hz"] = rate_hz
+    raw["walking"]["poincare"] = False
+    walker, settings = walker_from_raw(raw, COMPASS)
+    spec = gait_spec(raw, walker, settings, step_length=0.4, knots=knots)
+    return gait_config(raw, walker, design_gait(walker, spec), spec, settings)
+
+
+@pytest.fixture(scope="module")
+def closed():
+    raw = compass_design()
+    knots_check = verify_design(build_experiment(raw, COMPASS), steps=4)
+    config, orbit, check = close_on_orbit(raw, COMPASS, build_experiment, steps=4)
+    return raw, knots_check, config, orbit, check
+
+
+def constrained_acceleration(model, data, foot: int, q, v, tau):
+    """M a + b = tau + J^T F, J a + Jdot v = 0 (the stance foot's x and z), by a KKT solve."""
+    M = pin.crba(model, data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    b = pin.nonLinearEffects(model, data, q, v)
+    pin.computeJointJacobians(model, data, q)
+    pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
+    pin.updateFramePlacements(model, data)
+    J = pin.getFrameJacobian(model, data, foot, pin.LOCAL_WORLD_ALIGNED)[[0, 2]]
+    drift = pin.getFrameClassicalAcceleration(model, data, foot, pin.LOCAL_WORLD_ALIGNED).linear
+    K = np.block([[M, -J.T], [J, np.zeros((2, 2))]])
+    return np.linalg.solve(K, np.concatenate([tau - b, -drift[[0, 2]]]))[:model.nv]
+
+
+def allocation(model, data, foot: int, q, motors):
+    """u = (B^T W B)^-1 B^T W tau with W = M^-1 - M^-1 J^T (J M^-1 J^T)^-1 J M^-1."""
+    M = pin.crba(model, data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+    J = pin.getFrameJacobian(model, data, foot, pin.LOCAL_WORLD_ALIGNED)[[0, 2]]
+    Mi = np.linalg.inv(M)
+    W = Mi - Mi @ J.T @ np.linalg.solve(J @ Mi @ J.T, J @ Mi)
+    B = np.eye(model.nv)[:, motors]
+    return np.linalg.solve(B.T @ W @ B, B.T @ W)
+
+
+def test_the_orbit_is_a_physical_motion_of_the_feedforward_alone(closed):
+    raw, knots_check, config, orbit, check = closed
+    exp = build_experiment(config, COMPASS)
+    model, data = exp.robot.model, exp.robot.model.createData()
+    W = exp.hybrid.walker
+    foot = model.getFrameId("left_foot")  # the stance foot in the first step's labels
+    x = np.array(check.poincare["fixed_point_q"] + check.poincare["fixed_point_v"])
+    P, Pv, Pa = exp.primitives.desired(exp.theta_demo)
+    log = exp.hybrid.run_cycle(exp.dynamics, x[:model.nq], x[model.nq:], P, Pv, Pa)
+    m = orbit.samples_per_step[0]
+    assert log.impacts[0][0] == m and len(log.q) == 2 * m
+    # the loop's feedback on the orbit vanishes; the knots' design left a floor
+    assert np.abs(log.u_fb).max() < 1e-5
+    assert knots_check.feedback > 1e-2
+    dt = exp.config.dt
+    for k in range(2, m - 1, 7):  # control steps of the first step (no touchdown inside)
+        q, v = log.q[k], log.v[k]
+        # the feedforward of the orbit's own demo sample, allocated onto the motor
+        tau_ff = pin.rnea(model, data, q, v, orbit.a[k])
+        u = allocation(model, data, foot, q, W.motor_v) @ tau_ff
+        assert u == pytest.approx(log.tau[k], abs=1e-6)
+        tau = W.B @ u
+        nv = model.nv
+
+        def f(t, y):
+            return np.concatenate([y[nv:], constrained_acceleration(model, data, foot,
+                                                                     y[:nv], y[nv:], tau)])
+
+        sol = solve_ivp(f, (0.0, dt), np.concatenate([q, v]), rtol=1e-11, atol=1e-12,
+                        method="DOP853")
+        np.testing.assert_allclose(sol.y[:nv, -1], log.q[k + 1], atol=1e-8)
+        np.testing.assert_allclose(sol.y[nv:, -1], log.v[k + 1], atol=1e-7)
+
+
+def test_the_closed_config_replays_its_orbit(closed):
+    raw, _, config, orbit, check = closed
+    n = len(orbit.q)
+    assert config["period_s"] == pytest.approx(n / raw["sim"]["rate_hz"])
+    demo = config["joints"]["hip"]["demo"]
+    assert demo["kind"] == "samples" and len(demo["q"]) == n + 1
+    assert config["joints"]["hip"]["follow_demo"] and config["joints"]["base_pitch"]["follow_demo"]
+    assert check.walked and check.stable and check.feedback < 1e-5
+    # periodic: the fixed point of the closed loop is the orbit's start, the demos' first sample
+    exp = build_experiment(config, COMPASS)
+    q0, _ = exp.hybrid.initial_state(*exp.primitives.desired(exp.theta_demo)[:2])
+    np.testing.assert_allclose(q0, check.poincare["fixed_point_q"], atol=1e-8)
+
+
+def compass_file(tmp_path, rate_hz: int = 250) -> Path:
+    """The compass gait's config at a coarser control rate (quicker to verify), as a file."""
+    import yaml
+
+    raw = read_yaml(COMPASS)
+    raw["sim"]["rate_hz"] = rate_hz
+    raw["robot"] = str(Path("robots/compass_gait.urdf").resolve())
+    path = tmp_path / "compass.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def unstabilized_three_link(tmp_path) -> Path:
+    """The three-link walker with its torso's gains ~0: its designed gait falls in the loop."""
+    import yaml
+
+    raw = read_yaml(Path("configs/gaits/three_link_walker.yaml"))
+    raw["joints"]["base_pitch"]["gains"] = {"kp": 1.0, "kd": 0.1}
+    raw["robot"] = str(Path("robots/three_link_walker.urdf").resolve())
+    path = tmp_path / "unstabilized.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def test_a_design_that_does_not_walk_is_refused(tmp_path):
+    path = unstabilized_three_link(tmp_path)
+    raw = read_yaml(path)
+    walker, settings = walker_from_raw(raw, path)
+    spec = gait_spec(raw, walker, settings, speed=0.8, torso=0.1, knots=24)
+    design = gait_config(raw, walker, design_gait(walker, spec), spec, settings)
+    with pytest.raises(GaitNotWalking, match="not walking after [0-3] steps") as info:
+        close_on_orbit(design, path, build_experiment, steps=4)
+    assert not info.value.check.walked
+
+
+def test_cli_verifies_closes_and_refuses(tmp_path, capsys):
+    import yaml
+
+    from feltool.cli import main
+
+    out = tmp_path / "gait.yaml"
+    assert main(["gait", str(compass_file(tmp_path)), "--step-length", "0.4", "--knots", "24",
+                 "--verify-steps", "4", "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    for word in ("walked 4 steps: yes", "spectral radius", "the loop's periodic orbit"):
+        assert word in text
+    head = out.read_text().splitlines()[3]
+    assert head.startswith("# In feltool's walker: walked 4 steps")
+    config = yaml.safe_load(out.read_text())
+    n = round(config["period_s"] * config["sim"]["rate_hz"])
+    assert len(config["joints"]["hip"]["demo"]["q"]) == n + 1
+    # a design that does not walk in the loop: exit 1, the reason, nothing written
+    bad = tmp_path / "bad.yaml"
+    assert main(["gait", str(unstabilized_three_link(tmp_path)), "--speed", "0.8", "--torso",
+                 "0.1", "--knots", "24", "--verify-steps", "4", "--out", str(bad),
+                 "--no-progress"]) == 1
+    captured = capsys.readouterr()
+    assert "walked" in captured.out and "no, not walking" in captured.out
+    assert "feltool: error: not walking" in captured.err and "Traceback" not in captured.err
+    assert not bad.exists()
