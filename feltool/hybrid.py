@@ -16,13 +16,12 @@ where :math:`\Pi` exchanges the stance and swing legs (§3.2.2: :math:`X^+ = [q_
 A step ends when the guard :math:`a^\top q` crosses its value inside the armed window (or by the
 clock at the window's end). The impact is either the thesis's relabelling
 (:math:`q^+ = A^{-1}\Pi A q^-`, same for :math:`\dot q`) or a rigid, perfectly inelastic foot impact:
-with the base freed (model :math:`q_e = (x, z, q)`), the impulse :math:`F` at the swing foot solves
+with the base freed (model :math:`q_e = (x, z, q)`), Pinocchio's ``impulseDynamics`` solves
 
 .. math::
 
-    \begin{bmatrix} M_e & -J^\top \\ J & 0 \end{bmatrix}
-    \begin{bmatrix} \dot q_e^+ \\ F \end{bmatrix} =
-    \begin{bmatrix} M_e \dot q_e^- \\ 0 \end{bmatrix},\qquad \dot q_e^- = (0, 0, \dot q^-),
+    M_e(\dot q_e^+ - \dot q_e^-) = J^\top F,\qquad J\dot q_e^+ = 0,
+    \qquad \dot q_e^- = (0, 0, \dot q^-),
 
 (Grizzle's planar impact map), followed by the relabelling. Joint torques
 :math:`\tau = u_{ff} + u_{fb}` are mapped onto the motors by :class:`Allocation`.
@@ -137,16 +136,11 @@ class Walker:
         if self.impact == "rigid":
             model, data = self.free_model, self.free_data
             qe, ve = np.concatenate([[0.0, 0.0], q]), np.concatenate([[0.0, 0.0], v])
-            M = pin.crba(model, data, qe)
-            M = np.triu(M) + np.triu(M, 1).T
             pin.computeJointJacobians(model, data, qe)
             pin.updateFramePlacements(model, data)
             J = pin.getFrameJacobian(model, data, self.foot_frame,
                                      pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[[0, 2], :]
-            n = M.shape[0]
-            K = np.block([[M, -J.T], [J, np.zeros((2, 2))]])
-            sol = np.linalg.solve(K, np.concatenate([M @ ve, np.zeros(2)]))
-            v = sol[2:n]
+            v = np.array(pin.impulseDynamics(model, data, qe, ve, J))[2:]
         return self.R @ q, self.R @ v
 
     def placement_offset(self, q: np.ndarray, v: np.ndarray, qd: np.ndarray, vd: np.ndarray,
