@@ -196,7 +196,8 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def _print_walking(summary: dict) -> None:
-    """Physical walkers: per seed, whether it walked, and the gait's numbers."""
+    """Walkers: per seed, whether it walked, the gait's numbers and each learned joint's own
+    feedback, first and last cycle."""
     walkers = [s for s in summary["seeds"] if isinstance(s.get("walking"), dict)]
     if not walkers:
         return
@@ -205,13 +206,20 @@ def _print_walking(summary: dict) -> None:
         w = s["walking"]
         rho = (s.get("poincare") or {}).get("spectral_radius")
         head = "walked" if w["walked"] else f"NOT WALKING ({w['not_walking'] or 'fell'})"
-        print(f"  seed {s['seed']} {head}: {w.get('steps', 0)} steps, step "
-              f"{fmt(w.get('step_length_m'), '.3f')} m, speed {fmt(w.get('speed_m_per_s'), '.3f')}"
-              f" m/s, CoT {fmt(w.get('cost_of_transport'), '.3f')}, torso RMS "
-              f"{fmt(w.get('stabilized_rms_last_rad'), '.3g')} rad, ratio "
-              f"{fmt(s.get('fb_ratio'), '.2%')}, Poincare rho {fmt(rho, '.3f')}; min F_n "
-              f"{fmt(w.get('min_normal_force_N'), '.4g')} N, max |F_t|/F_n "
-              f"{fmt(w.get('max_friction_ratio'), '.3f')}")
+        line = (f"  seed {s['seed']} {head}: {w.get('steps', 0)} steps, step "
+                f"{fmt(w.get('step_length_m'), '.3f')} m, speed "
+                f"{fmt(w.get('speed_m_per_s'), '.3f')} m/s, CoT "
+                f"{fmt(w.get('cost_of_transport'), '.3f')}, torso RMS "
+                f"{fmt(w.get('stabilized_rms_last_rad'), '.3g')} rad, ratio "
+                f"{fmt(s.get('fb_ratio'), '.2%')}, Poincare rho {fmt(rho, '.3f')}")
+        if "min_normal_force_N" in w:
+            line += (f"; min F_n {fmt(w.get('min_normal_force_N'), '.4g')} N, max |F_t|/F_n "
+                     f"{fmt(w.get('max_friction_ratio'), '.3f')}")
+        print(line)
+        learned = s.get("learned_feedback") or {}
+        if learned:
+            print("      learned, own feedback first -> last cycle: " + ", ".join(
+                f"{j} {d['first']:.3g} -> {d['last']:.3g} N m" for j, d in learned.items()))
     agg = summary["aggregate"]
     kinds = ", ".join(f"{k} {c}" for k, c in agg.get("not_walking", {}).items())
     print(f"  walked without falling: {agg.get('n_walked', 0)}/{len(walkers)} seeds; not "
@@ -240,9 +248,10 @@ def print_summary(summary: dict, out_dir: Path) -> None:
             print(f"  seed {s['seed']} hit the URDF's " + "; ".join(parts))
     _print_walking(summary)
     conv = agg["converged_cycle_max"]
-    print(f"  converged (below 5 % of the initial feedback for good): {agg['n_converged']}/"
-          f"{agg['n_seeds']} seeds" + (f", mean cycle {agg['converged_cycle_mean']:.1f}, "
-                                        f"max {conv}" if conv is not None else ""))
+    if "n_walked" not in agg:  # a walker: its block above reports what walking needs
+        print(f"  converged (below 5 % of the initial feedback for good): {agg['n_converged']}/"
+              f"{agg['n_seeds']} seeds" + (f", mean cycle {agg['converged_cycle_mean']:.1f}, "
+                                            f"max {conv}" if conv is not None else ""))
     for s in summary["seeds"]:
         if s.get("failed_reason") and not s["diverged"]:
             print(f"  seed {s['seed']} did not learn as the config asks: {s['failed_reason']}")

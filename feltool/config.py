@@ -283,6 +283,9 @@ class LearnConfig(Strict):
                                       f"{MAX_WEIGHT_SCALE:g}.")
     goal_spread: NonNegFloat = Field(0.3, le=MAX_ANGLE, description="Random initial goal uniform "
                                      f"in goal_center +- goal_spread, in [rad]; at most {MAX_ANGLE:g}.")
+    rate_scale: PositiveFloat = Field(1.0, le=1e6, description="Multiplies learning.rates for "
+        "this joint's weights and goal [-] (e.g. a tracked leg learned more slowly than the "
+        "torso it carries); at most 1e6.")
     goal_center: Angle | None = Field(None, description="Centre of the initial goal in [rad]; "
                                             "default: the value that meets the joint's target with "
                                             "the other joints at their goals (or the demo's mean).")

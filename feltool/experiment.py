@@ -367,7 +367,8 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         idx = list(range(sl.start, sl.stop))
         learned += idx
         is_goal += [False] * (len(idx) - 1) + [True]
-        rates += [L.rates.weights] * (len(idx) - 1) + [L.rates.goal]
+        scale = jc.learn.rate_scale
+        rates += [scale * L.rates.weights] * (len(idx) - 1) + [scale * L.rates.goal]
         center = jc.learn.goal_center if jc.learn.goal_center is not None else (
             float(centers[i]) if stabilizing[i] else float(goals[i]))
         scale = (jc.learn.perturbation_rad if jc.learn.init == "perturbed"

@@ -197,6 +197,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     if cfg.walking is not None and cfg.walking.physical:
         failed = out.contact if reason and out is not None else None
         summary["walking"] = walking_summary(exp, rows, contacts, failed, reason)
+    elif exp.hybrid is not None and exp.hybrid.walker is not None:
+        summary["walking"] = pinned_walking_summary(exp, last, traces, impacts, reason)
+    summary["learned_feedback"] = learned_feedback(exp, rows)
     summary["limits"] = ({"joint_limit_steps": _nonzero(exp.joints, hits[0]),
                           "torque_limit_steps": _nonzero(exp.joints, hits[1])}
                          if checked else "not checked")
@@ -434,6 +437,35 @@ def walking_summary(exp: Experiment, rows: list, contacts: list[dict], failed: d
             "max_impulse_ratio": max(c["max_impulse_ratio"] for c in contacts),
             "walk_time_s": dur,
         })
+    return out
+
+
+def pinned_walking_summary(exp: Experiment, last: CycleOutcome | None, traces: dict,
+                           impacts: dict[str, int], reason: str | None) -> dict[str, Any]:
+    """The thesis's pinned walker (``impact: relabel`` or ``rigid``, no contact model): whether it
+    walked without falling, steps, the last cycle's mean step length [m] and speed [m/s], and
+    the stabilized quantities' RMS error [rad] over the last cycle."""
+    out: dict[str, Any] = {"walked": reason is None, "not_walking": None,
+                           "steps": impacts["guard"] + impacts["clock"]}
+    if last is not None and last.impacts:
+        lengths = [abs(x) for _, _, x in last.impacts]
+        out["step_length_m"] = float(np.mean(lengths))
+        out["speed_m_per_s"] = float(np.sum(lengths) / exp.config.period_s)
+    stab = exp.law.stabilizing
+    if "last_q_system" in traces and stab.any():
+        err = wrap(exp.law.quantity(traces["last_q_system"])[:, stab] - exp.law.targets[stab])
+        out["stabilized_rms_last_rad"] = float(np.sqrt(np.mean(err**2)))
+    return out
+
+
+def learned_feedback(exp: Experiment, rows: list[dict]) -> dict[str, dict[str, float]]:
+    """Each learned joint's own mean |feedback| [N m] in the first and the last cycle."""
+    out = {}
+    for name in exp.learned_joints:
+        fb = [r[f"fb_abs_mean_{name}"] for r in rows]
+        if fb:
+            out[name] = {"first": fb[0], "last": fb[-1],
+                         "ratio": fb[-1] / fb[0] if fb[0] else None}
     return out
 
 

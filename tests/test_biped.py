@@ -148,6 +148,19 @@ def test_the_biped_walks_and_fel_reduces_the_summed_feedback(walked):
         assert stabilization_errors(exp, result.traces)["torso_hip_system"] < 0.01, s["seed"]
         # Every impact came at the nominal step time (2 per cycle).
         assert s["guard_impacts"] + s["clock_impacts"] == 40, s["seed"]
+        # What a walking researcher looks for (the terminal's walker lines): it walked, 40
+        # steps, the last cycle's step length and speed from its impacts, the torso's RMS
+        # error, and each learned joint's own feedback
+        w = s["walking"]
+        assert w["walked"] and w["steps"] == 40 and w["not_walking"] is None
+        last = result.rows[-1]
+        assert w["stabilized_rms_last_rad"] < 0.01
+        assert 0.8 * 2 * np.sin(np.pi / 18) < w["step_length_m"] < 1.1 * 2 * np.sin(np.pi / 18)
+        assert w["speed_m_per_s"] == pytest.approx(2 * w["step_length_m"])
+        for joint in exp.learned_joints:
+            fb = s["learned_feedback"][joint]
+            assert fb["first"] == result.rows[0][f"fb_abs_mean_{joint}"]
+            assert fb["last"] == last[f"fb_abs_mean_{joint}"] < fb["first"]
 
 
 def test_poincare_map_has_a_stable_fixed_point(walked):
@@ -279,3 +292,29 @@ def test_impact_window_masks_the_learning_signal_and_is_only_for_walkers():
     assert E.all()  # the log itself is untouched
     with pytest.raises(ConfigError, match="impact_window_s"):
         load_experiment(CONFIGS / "two_link_standard.yaml", ["learning.impact_window_s=0.05"])
+
+
+def test_terminal_summary_of_a_walker(tmp_path, capsys):
+    """`feltool run` of the pinned walker prints the walker's numbers and each learned joint's
+    own feedback, not the arm's 'converged' line (a walker's summed feedback has a floor)."""
+    from feltool.cli import main
+
+    code = main(["run", str(CONFIGS / "biped_torso.yaml"), "--seeds", "0", "--cycles", "3",
+                 "--out", str(tmp_path / "run"), "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "seed 0 walked: 6 steps, step 0." in out and "Poincare rho" in out
+    assert "learned, own feedback first -> last cycle: torso_hip" in out
+    assert "walked without falling: 1/1 seeds" in out
+    assert "converged (below 5 %" not in out
+
+
+def test_rate_scale_scales_one_joints_rates():
+    exp = load_experiment(CONFIGS / "biped_torso.yaml",
+                          ["joints.swing_hip.learn={init: demo, rate_scale: 0.02}"])
+    rates = dict(zip(exp.learner.learned, exp.learner.rates))
+    L = exp.config.learning.rates
+    for name, scale in (("swing_hip", 0.02), ("torso_hip", 1.0)):
+        sl = exp.primitives.slices[exp.joints.index(name)]
+        assert [rates[p] for p in range(sl.start, sl.stop)] == pytest.approx(
+            [scale * L.weights] * (sl.stop - sl.start - 1) + [scale * L.goal])
