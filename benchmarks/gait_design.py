@@ -27,12 +27,16 @@ from feltool.gait_config import gait_spec, walker_from_raw  # noqa: E402
 from feltool.gait_design import design_gait  # noqa: E402
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "gaits"
-CASES = [  # label, config, designer options (as feltool gait's)
+CASES = [  # label, config, designer options (as feltool gait's; the shipped configs' headers)
     ("compass gait, passive, 3 deg slope", "compass_gait",
      {"passive": True, "slope": float(np.deg2rad(3.0))}),
-    ("compass gait, hip motor, 0.03 rad slope", "compass_gait", {"step_length": 0.4}),
-    ("three-link walker (torso 0.1 rad)", "three_link_walker", {"speed": 0.8}),
-    ("five-link walker with knees", "five_link_walker", {"speed": 0.8}),
+    ("compass gait, hip motor, 0.03 rad slope", "compass_gait",
+     {"step_length": 0.4, "duration": 0.6}),
+    ("three-link walker (torso 0.1 rad)", "three_link_walker",
+     {"step_length": 0.5, "duration": 0.6, "torso": 0.1, "friction_margin": 0.6,
+      "normal_force_margin": 0.5}),
+    ("five-link walker with knees", "five_link_walker",
+     {"speed": 0.8, "duration": 0.5, "torso": 0.1}),
 ]
 
 

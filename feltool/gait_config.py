@@ -96,8 +96,9 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
     """The :class:`GaitSpec` of a config and the command line's choices.
 
     The step's duration is ``duration`` [s], else the config's ``period_s`` over
-    ``steps_per_cycle`` (free for a passive gait); the friction cone is designed within ``friction_margin`` times the config's
-    mu, the normal force ``normal_force_margin`` m g above ``walking.normal_force_min`` and the
+    ``steps_per_cycle`` (free for a passive gait); the friction cone is designed within
+    ``friction_margin`` times the config's mu, the normal force ``normal_force_margin`` m g
+    above ``walking.normal_force_min`` and the
     swing foot ``clearance_margin_m`` above the ground outside the scuffing zone (margins for
     tracking errors, none for a passive gait); the torso is ``base_pitch`` when the config
     stabilizes it, at its ``target.value``, or at ``torso`` [rad] when given (``torso_weight``:

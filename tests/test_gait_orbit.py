@@ -92,7 +92,7 @@ def test_the_orbit_is_a_physical_motion_of_the_feedforward_alone(closed):
         tau = W.B @ u
         nv = model.nv
 
-        def f(t, y):
+        def f(t, y, tau=tau, nv=nv):
             return np.concatenate([y[nv:], constrained_acceleration(model, data, foot,
                                                                      y[:nv], y[nv:], tau)])
 
