@@ -10,11 +10,14 @@ import pytest
 from feltool.experiment import load_experiment
 from feltool.seed import run_seed
 
-# config, learned joint, cycles, bound on last/first summed feedback (every seed)
+# config, learned joint, cycles, bound on last/first summed feedback (every seed; measured on
+# seeds 0, 1 at 8 cycles: 0.0033, 0.0096 / 0.056, 0.096 / 0.029, 0.038). The gaits' demos are
+# the loop's own orbit (feltool gait), so no floor stops the feedback; the knots' designs
+# stalled at 0.2-0.3 (three-link) for good.
 SHIPPED = [
-    ("configs/gaits/five_link_walker.yaml", "base_pitch", 5, 0.35),
-    ("configs/gaits/compass_gait.yaml", "hip", 5, 0.6),
-    ("configs/gaits/three_link_walker.yaml", "base_pitch", 5, 0.6),
+    ("configs/gaits/five_link_walker.yaml", "base_pitch", 8, 0.03),
+    ("configs/gaits/compass_gait.yaml", "hip", 8, 0.2),
+    ("configs/gaits/three_link_walker.yaml", "base_pitch", 8, 0.1),
 ]
 
 
