@@ -4,7 +4,8 @@ problem on its own line with the config path it concerns.
 * :func:`target_problems` — a stabilized quantity that no actuated joint moves: its row of the
   controlled quantities' Jacobian is zero on the actuated joints at the neutral pose and at
   :data:`RANDOM_POSES` seeded random poses (the stabilizing torque acts through that row, so it
-  could never act). Run while the experiment is built: such a target also has no start state.
+  could never act). Building an experiment refuses such a target; ``feltool check`` lists it
+  with the other problems.
 * :func:`learning_problems` — a learned joint whose feedforward the error signal never sees:
   the learner's gradient :math:`\sum_k e_k^\top \partial u_{ff}/\partial\theta_j` goes through
   the columns :math:`\partial\tau/\partial q_j, \partial\tau/\partial\dot q_j, M_{:,j}` of the
@@ -30,6 +31,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
+
+from feltool.bounds import MAX_RATE_HZ
 
 if TYPE_CHECKING:
     from feltool.control import FeedbackLaw
@@ -158,13 +161,13 @@ def gain_problems(exp: Experiment) -> list[tuple[str, str]]:
     problems: dict[int, float] = {}
     for lam, vec in zip(values, vectors.T):
         if lam.real > 1e-9 * scale:
-            row = int(np.argmax(np.abs(J @ vec[:nv])))
+            row = int(np.argmax(np.abs(vec[:nv])))
             problems[row] = max(problems.get(row, 0.0), float(lam.real))
     return [(f"joints.{exp.joints[row]}.gains", f"kp {law.kp[row]:g}, kd {law.kd[row]:g} leave "
              f"the closed loop unstable for the robot's inertia at the start pose: eigenvalue "
              f"with real part {growth:.3g} 1/s (the motion grows e-fold every "
-             f"{1.0 / growth:.3g} s), mostly in this joint's controlled quantity; raise kp "
-             "above the gravity stiffness it holds, and kd with it")
+             f"{1.0 / growth:.3g} s), mostly in this joint; raise kp above the gravity "
+             "stiffness it holds, and kd with it")
             for row, growth in sorted(problems.items())]
 
 
@@ -225,9 +228,10 @@ def timestep_problems(exp: Experiment) -> list[tuple[str, str]]:
         if b <= _ZERO or kp + kd == 0 or sampled_pd_stable(kp * b * dt**2, kd * b * dt, c):
             continue
         fine = [r for r in cfg.sim.rate_hz * 2.0 ** np.arange(1, 21)
-                if sampled_pd_stable(kp * b / r**2, kd * b / r, c)]
+                if r <= MAX_RATE_HZ and sampled_pd_stable(kp * b / r**2, kd * b / r, c)]
         remedy = (f"raise sim.rate_hz to {fine[0]:g} or more, or lower the gains" if fine else
-                  "no rate helps: explicit Euler needs kd > 0 (use semi_implicit_euler)")
+                  "no rate helps: explicit Euler needs kd > 0 (use semi_implicit_euler)"
+                  if kd == 0 and c < 1 else "lower the gains")
         problems.append((f"joints.{exp.joints[row]}.gains", f"sim.rate_hz {cfg.sim.rate_hz:g} "
                          f"is too coarse for kp {kp:g}, kd {kd:g}: kp dt^2/m = "
                          f"{kp * b * dt**2:.3g} and kd dt/m = {kd * b * dt:.3g} (effective "
@@ -238,6 +242,10 @@ def timestep_problems(exp: Experiment) -> list[tuple[str, str]]:
 
 
 def experiment_problems(exp: Experiment) -> list[tuple[str, str]]:
-    """Every problem of :func:`learning_problems`, :func:`gain_problems` and
-    :func:`timestep_problems` (the targets were checked when the experiment was built)."""
-    return learning_problems(exp) + gain_problems(exp) + timestep_problems(exp)
+    """Every problem of :func:`target_problems`, :func:`learning_problems`,
+    :func:`gain_problems` and :func:`timestep_problems`."""
+    targets = target_problems(exp.robot.model, exp.law, exp.joints, exp.loop.actuated)
+    unreachable = {path.rsplit(".", 1)[0] for path, _ in targets}
+    return targets + learning_problems(exp) + [  # a joint whose target is out of reach is
+        (path, msg) for path, msg in gain_problems(exp) + timestep_problems(exp)  # reported once
+        if path.rsplit(".", 1)[0] not in unreachable]

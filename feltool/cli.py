@@ -61,13 +61,13 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _load(config: str, overrides: list[str]):
+def _load(config: str, overrides: list[str], check_targets: bool = True):
     from feltool.config import apply_overrides, read_yaml
     from feltool.experiment import build_experiment, resolve_config_path
 
     path = resolve_config_path(config)
     raw = apply_overrides(read_yaml(path), overrides)
-    return build_experiment(raw, source=path), raw
+    return build_experiment(raw, source=path, check_targets=check_targets), raw
 
 
 def _progress(args: argparse.Namespace) -> tuple[bool, object]:
@@ -292,7 +292,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     from feltool.checks import experiment_problems
     from feltool.errors import ConfigError
 
-    exp, _ = _load(args.config, list(args.set or []))
+    exp, _ = _load(args.config, list(args.set or []), check_targets=False)
     cfg = exp.config
     _print_warnings(exp.robot)
     problems = experiment_problems(exp)
