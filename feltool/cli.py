@@ -105,6 +105,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.seeds is not None:
             overrides.append(f"seeds={parse_seeds(args.seeds)}")
         exp, raw = _load(args.config, overrides)
+        _print_warnings(exp.robot)
         seeds, cycles = None, None
         out_dir = out_dir or default_out_dir(exp.config.name)
     viewer = stream = None

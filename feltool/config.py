@@ -808,8 +808,8 @@ class RobotConfig(Strict):
                         "to the config file), or example-robot-data:NAME.")
     lenient: bool = Field(True, description="Read the URDF dialects of other toolchains that "
         "Pinocchio's parser refuses, each said in a warning: `world` as the root's parent, an "
-        "<inertial> without <inertia> (a point mass), a revolute or prismatic joint without "
-        "<limit> (unbounded). false: refuse them, naming the element.")
+        "`<inertial>` without `<inertia>` (a point mass), a revolute or prismatic joint "
+        "without `<limit>` (unbounded). false: refuse them, naming the element.")
 
 
 class ExperimentConfig(Strict):
