@@ -188,9 +188,13 @@ def _validate_elements(urdf: yourdfpy.URDF, where: str) -> None:
         for item in getattr(urdf.robot, kind):
             probe = yourdfpy.URDF(yourdfpy.Robot(name=urdf.robot.name, **{kind: [item]}),
                                   build_scene_graph=False, load_meshes=False)
-            if not probe.validate():
+            try:
+                problems = [] if probe.validate() else [e.msg for e in probe.errors]
+            except Exception as exc:  # yourdfpy's validation fails on what it cannot read
+                problems = [f"{type(exc).__name__}: {exc}"]
+            if problems:
                 raise RobotError(f"{where}: <{kind[:-1]} name=\"{item.name}\">: "
-                                 + "; ".join(e.msg for e in probe.errors))
+                                 + "; ".join(problems))
 
 
 # -- dialects -------------------------------------------------------------------------------------
