@@ -61,13 +61,13 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _load(config: str, overrides: list[str]):
+def _load(config: str, overrides: list[str], check_targets: bool = True):
     from feltool.config import apply_overrides, read_yaml
     from feltool.experiment import build_experiment, resolve_config_path
 
     path = resolve_config_path(config)
     raw = apply_overrides(read_yaml(path), overrides)
-    return build_experiment(raw, source=path), raw
+    return build_experiment(raw, source=path, check_targets=check_targets), raw
 
 
 def _progress(args: argparse.Namespace) -> tuple[bool, object]:
@@ -105,6 +105,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.seeds is not None:
             overrides.append(f"seeds={parse_seeds(args.seeds)}")
         exp, raw = _load(args.config, overrides)
+        _print_warnings(exp.robot)
         seeds, cycles = None, None
         out_dir = out_dir or default_out_dir(exp.config.name)
     viewer = stream = None
@@ -298,13 +299,26 @@ _ROW_FIELDS = {"point", "seed", "fb_initial", "fb_final", "converged_cycle", "di
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    exp, _ = _load(args.config, list(args.set or []))
+    from feltool.checks import experiment_problems
+    from feltool.errors import ConfigError
+
+    exp, _ = _load(args.config, list(args.set or []), check_targets=False)
     cfg = exp.config
+    _print_warnings(exp.robot)
+    problems = experiment_problems(exp)
+    if problems:
+        raise ConfigError(problems, str(exp.source) if exp.source else None)
     print(f"{exp.source}: ok - robot {exp.robot.name} ({len(exp.joints)} moving joints: "
           f"{', '.join(exp.joints)}), {cfg.steps_per_cycle} steps per cycle, learned: "
           f"{', '.join(exp.learned_joints) or 'nothing'}, error signal: "
           f"{', '.join(exp.error_joints)}, {len(cfg.seed_list)} seeds")
     return 0
+
+
+def _print_warnings(robot) -> None:
+    """What lenient URDF reading accepted (robot.lenient), one line each, on stderr."""
+    for line in robot.warnings:
+        print(f"feltool: warning: {line} (robot.lenient)", file=sys.stderr)
 
 
 def cmd_robots(args: argparse.Namespace) -> int:
@@ -320,28 +334,55 @@ def cmd_robots(args: argparse.Namespace) -> int:
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
-    from feltool.robot import config_skeleton, describe, load_robot
+    from feltool.inspection import config_skeleton, describe, parse_pose, to_yaml
+    from feltool.robot import load_robot
 
-    robot = load_robot(args.robot, base_dir=Path.cwd())
-    info = describe(robot)
-    if args.json:
-        print(json.dumps({**info, "config_skeleton": config_skeleton(robot)}, indent=2))
+    robot = load_robot(args.robot, base_dir=Path.cwd(), lenient=not args.strict)
+    q = parse_pose(robot, args.pose)
+    info = describe(robot, q)
+    skeleton = config_skeleton(robot, q if args.pose else None)
+    fmt = "json" if args.json else args.format
+    if fmt == "json":
+        print(json.dumps({**info, "config_skeleton": skeleton}, indent=2, allow_nan=False))
         return 0
+    if fmt == "yaml":
+        print(to_yaml({**info, "config_skeleton": skeleton}), end="")
+        return 0
+    _print_inspection(info)
+    print("\nsuggested config (feltool check accepts it as it is; give other joints a role):\n")
+    print(skeleton)
+    return 0
+
+
+def _print_inspection(info: dict) -> None:
+    """``feltool inspect``'s tables."""
+    fmt = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
     print(f"robot {info['name']}  ({info['source']})")
-    print(f"  {'joint':<22} {'type':<18} {'axis':<18} {'limits [rad|m]':<20} {'effort':>8} "
-          f"{'actuated':>8}  {'parent':<16}")
+    for line in info["warnings"]:
+        print(f"  read leniently: {line}")
+    print(f"  {'joint':<22} {'type':<11} {'axis':<18} {'position':>9} {'limits [rad|m]':<20} "
+          f"{'effort':>8} {'actuated':>8}  {'parent':<16}")
     for j in info["joints"]:
-        lim = f"[{j['lower']:.4g}, {j['upper']:.4g}]"
+        lim = "none" if j["lower"] is None else f"[{j['lower']:.4g}, {j['upper']:.4g}]"
         axis = "-" if j["axis"] is None else str([round(a, 3) for a in j["axis"]])
-        print(f"  {j['name']:<22} {j['type']:<18} {axis:<18} {lim:<20} {j['effort']:>8.4g} "
+        print(f"  {j['name']:<22} {j['type']:<11} {axis:<18} {fmt(j['position']):>9} {lim:<20} "
+              f"{'inf' if j['effort'] is None and j['nv'] == 1 else fmt(j['effort']):>8} "
               f"{'yes' if j['actuated'] else 'no':>8}  {j['parent']:<16}")
     print(f"  {'body (moved by joint)':<22} {'mass [kg]':>10}")
     for b in info["bodies"]:
         print(f"  {b['name']:<22} {b['mass']:>10.4g}")
-    print(f"  total mass: {info['total_mass']:.4g} kg")
-    print("\nsuggested config (every joint locked; give some a role):\n")
-    print(config_skeleton(robot))
-    return 0
+    print(f"  total mass: {info['total_mass']:.4g} kg   centre of mass: {info['com']} m")
+    print(f"\n  {'frame':<28} {'type':<12} {'parent joint':<22} {'position [m]':<30} target "
+          "(about: world axis, vector: in the frame)")
+    for f in info["frames"]:
+        t = f["target"]
+        target = "- (no joint turns it)" if t is None else \
+            f"vector {t['vector']}, about {t['about']}"
+        print(f"  {f['name']:<28} {f['type']:<12} {f['parent_joint']:<22} "
+              f"{str(f['position']):<30} {target}")
+    print("\n  targets a stabilizing joint can hold, with their values at this pose [rad]:")
+    for t in info["targets"]:
+        print("    target: {" + ", ".join(f"{k}: {v}" for k, v in t.items()) + "}")
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
@@ -588,11 +629,19 @@ def build_parser() -> argparse.ArgumentParser:
              "  feltool robots\n  feltool inspect $(feltool robots | sed -n 2p)")
     p.set_defaults(func=cmd_robots)
 
-    p = _sub(sub, "inspect", "joints, links, masses of a robot, and a config skeleton",
-             "  feltool inspect two_link_arm\n  feltool inspect path/to/robot.urdf --json\n"
+    p = _sub(sub, "inspect", "joints, frames, masses and targets of a robot, and a config "
+             "skeleton", "  feltool inspect two_link_arm\n"
+             "  feltool inspect path/to/robot.urdf --format json\n"
+             "  feltool inspect two_link_arm --pose shoulder=1.2,elbow=0.4   # targets' values\n"
              "  feltool inspect example-robot-data:ur5 | head")
     p.add_argument("robot", help="bundled name, URDF path or example-robot-data:NAME")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--pose", metavar="JOINT=VALUE,...", help="the pose [rad or m] at which "
+                   "positions and targets are given (other joints neutral)")
+    p.add_argument("--format", choices=("text", "yaml", "json"), default="text",
+                   help="text tables (default), or yaml / json for scripts")
+    p.add_argument("--json", action="store_true", help="the same as --format json")
+    p.add_argument("--strict", action="store_true", help="refuse the URDF dialects that "
+                   "lenient reading accepts (as robot: {source: ..., lenient: false} does)")
     p.set_defaults(func=cmd_inspect)
 
     p = _sub(sub, "gait", "design a walker's periodic gait by trajectory optimization",

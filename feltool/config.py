@@ -804,14 +804,26 @@ class SuccessConfig(Strict):
                             "initial feedback for good) by the last cycle.")
 
 
+class RobotConfig(Strict):
+    """The robot in its long form, with how its URDF is read (docs/robots.md)."""
+
+    source: str = Field(min_length=1, description="Bundled robot name, a URDF path (relative "
+                        "to the config file), or example-robot-data:NAME.")
+    lenient: bool = Field(True, description="Read the URDF dialects of other toolchains that "
+        "Pinocchio's parser refuses, each said in a warning: `world` as the root's parent, an "
+        "`<inertial>` without `<inertia>` (a point mass), a revolute or prismatic joint "
+        "without `<limit>` (unbounded). false: refuse them, naming the element.")
+
+
 class ExperimentConfig(Strict):
     """One FEL experiment: a robot, the roles of its joints, and how to learn."""
 
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$",
                       description="Experiment name; used for the run directory.")
     description: str = Field("", description="Free text shown in summaries.")
-    robot: str = Field(min_length=1, description="Bundled robot name, a URDF path (relative to "
-                       "the config file), or example-robot-data:NAME.")
+    robot: Annotated[str, Field(min_length=1)] | RobotConfig = Field(description="Bundled "
+        "robot name, a URDF path (relative to the config file), or example-robot-data:NAME; "
+        "or {source: ..., lenient: false} to refuse the URDF dialects lenient reading accepts.")
     package_dirs: list[str] = Field(default_factory=list, description="Directories searched for "
                                     "package:// mesh paths of a URDF file (relative to the "
                                     "config file).")
@@ -884,6 +896,11 @@ class ExperimentConfig(Strict):
         return [(where, f"{basis} basis functions but only {round(steps)} samples per cycle "
                         "(period_s * sim.rate_hz); use at most that many")
                 for where, basis in bases.items() if basis > round(steps)]
+
+    @property
+    def robot_source(self) -> str:
+        """The robot as ``robot`` names it (bundled name, URDF path or example-robot-data:NAME)."""
+        return self.robot if isinstance(self.robot, str) else self.robot.source
 
     @property
     def seed_list(self) -> list[int]:
@@ -1053,9 +1070,13 @@ def config_to_yaml(cfg: ExperimentConfig, base_dir: Path | None = None) -> str:
     saved config works from anywhere (``feltool run RUN_DIR/config.yaml``, ``feltool view``)."""
     data = cfg.model_dump(mode="json")
     if base_dir is not None:
-        robot = data["robot"]
+        robot = cfg.robot_source
         if (robot.endswith(".urdf") or "/" in robot) and not Path(robot).expanduser().is_absolute():
-            data["robot"] = str((Path(base_dir) / robot).resolve())
+            robot = str((Path(base_dir) / robot).resolve())
+            if isinstance(data["robot"], dict):
+                data["robot"]["source"] = robot
+            else:
+                data["robot"] = robot
         data["package_dirs"] = [str((Path(base_dir) / d).resolve()) for d in data["package_dirs"]]
         plant = data.get("plant")
         if isinstance(plant, dict) and isinstance(plant.get("robot"), str) and \

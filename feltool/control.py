@@ -163,9 +163,18 @@ class FeedbackLaw:
         for _ in range(1 if self.linear else 50):
             J = self.jacobian(q)
             err = wrap(self.targets[s] - self.quantity(q)[s])
-            q[s] = q[s] + np.linalg.solve(J[np.ix_(s, s)], err)
+            q[s] = q[s] + _solve(J[np.ix_(s, s)], err)
             if np.abs(err).max() < 1e-13:
                 break
         J = self.jacobian(q)
-        v[s] = np.linalg.solve(J[np.ix_(s, s)], -J[np.ix_(s, ~s)] @ v[~s])
+        v[s] = _solve(J[np.ix_(s, s)], -J[np.ix_(s, ~s)] @ v[~s])
         return q, v
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``A x = b``; the least-squares x when A is singular (a target its joint does not move:
+    feltool check reports it, feltool.checks.target_problems)."""
+    try:
+        return np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, b, rcond=None)[0]

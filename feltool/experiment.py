@@ -7,13 +7,14 @@ robot, primitives, feedback laws and learner can be inspected before anything is
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
+from feltool.checks import target_problems
 from feltool.config import ExperimentConfig, JointConfig, apply_overrides, parse_config, read_yaml
 from feltool.control import FeedbackLaw, FrameAngle
 from feltool.disturbances import problems as disturbance_problems
@@ -27,7 +28,7 @@ from feltool.memory import check_memory
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, samples_demo, sine_demo
-from feltool.robot import Robot, data_dir, load_robot
+from feltool.robot import Robot, data_dir, load_robot, robot_spec
 from feltool.seed import CycleOutcome, SeedResult, run_seed, stabilization_errors  # noqa: F401
 from feltool.simulate import ClosedLoop, Limits
 from feltool.walker_config import physical_loop, walker_model
@@ -164,11 +165,12 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
     except ConfigError as exc:
         problems += exc.problems
     robot = None
-    if isinstance(raw.get("robot"), str) and raw["robot"]:
+    spec, lenient = robot_spec(raw.get("robot"))
+    if spec:
         try:
             dirs = raw.get("package_dirs") if isinstance(raw.get("package_dirs"), list) else []
-            robot = load_robot(raw["robot"], base_dir=source.parent if source else None,
-                               package_dirs=[str(d) for d in dirs])
+            robot = load_robot(spec, base_dir=source.parent if source else None,
+                               package_dirs=[str(d) for d in dirs], lenient=lenient)
         except RobotError as exc:
             problems.append(("robot", str(exc)))
     named = None
@@ -253,8 +255,11 @@ def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
     return problems
 
 
-def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experiment:
-    """Build an :class:`Experiment` from a raw config mapping."""
+def build_experiment(raw: dict[str, Any], source: Path | None = None,
+                     check_targets: bool = True) -> Experiment:
+    """Build an :class:`Experiment` from a raw config mapping; a stabilized quantity no
+    actuated joint moves is an error (unless ``check_targets`` is False: ``feltool check``
+    reports it with the problems it finds in the built experiment)."""
     cfg, full_robot = validate(raw, source)
     wm = None
     if cfg.walking is not None and cfg.walking.physical:
@@ -345,6 +350,9 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
         if jc.gains is not None and jc.role != "passive":
             kp[i], kd[i] = jc.gains.kp, jc.gains.kd
     law = FeedbackLaw(C, kp, kd, tracking, stabilizing, targets, frames)
+    unreachable = target_problems(robot.model, law, joints, actuated) if check_targets else []
+    if unreachable:
+        raise ConfigError(unreachable, str(source) if source else None)
     if stabilizing.any() and not frames and \
             abs(np.linalg.det(C[np.ix_(stabilizing, stabilizing)])) < 1e-12:
         raise ConfigError([("joints", "the stabilized quantities do not determine the "
@@ -537,8 +545,8 @@ def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
         # The same robot with its base freed in the sagittal plane (x, z): q_e = (x, z, q).
         root = pin.JointModelComposite(pin.JointModelPX())
         root.addJoint(pin.JointModelPZ())
-        free = None if robot.urdf_path is None else pin.buildModelFromUrdf(str(robot.urdf_path),
-                                                                           root)
+        free = None if robot.urdf_path is None and robot.urdf_xml is None else \
+            pin.buildModelFromXML(robot.description, root)
         if free is None or free.nv != robot.model.nv + 2:
             raise ConfigError([("walking.contact_frame", "needs a URDF robot with no locked "
                                                          "joints")], src)
@@ -645,8 +653,7 @@ def reduce_robot(robot: Robot, locked: dict[str, float]) -> Robot:
     model = pin.buildReducedModel(robot.model, sorted(ids), q_ref)
     if model.nv == 0:
         raise ConfigError([("joints", "every joint is locked; nothing moves")])
-    reduced = Robot(name=robot.name, model=model, source=robot.source, urdf_path=robot.urdf_path,
-                    package_dirs=robot.package_dirs)
+    reduced = replace(robot, model=model, _visual_model=None)
     if robot._visual_model is not None:
         # Visuals loaded with the robot (example-robot-data's, whose package:// meshes the URDF
         # alone cannot resolve) are reduced with it, so viewers draw the reduced robot.

@@ -19,7 +19,7 @@ import yaml
 
 from feltool.errors import ConfigError, RobotError
 from feltool.gait_design import Gait, GaitSpec
-from feltool.robot import load_robot
+from feltool.robot import load_robot, robot_spec
 from feltool.walker_model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
 
 
@@ -61,7 +61,8 @@ def walker_from_raw(raw: dict[str, Any], source: Path | None = None
                             "[[left_hip, right_hip]]")], where)
     base_dir = source.parent if source else Path.cwd()
     try:
-        robot = load_robot(str(raw.get("robot")), base_dir=base_dir)
+        source, lenient = robot_spec(raw.get("robot"))
+        robot = load_robot(source, base_dir=base_dir, lenient=lenient)
     except RobotError as exc:
         raise ConfigError([("robot", str(exc))], where) from None
     gravity = raw.get("gravity", 9.8)

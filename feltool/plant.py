@@ -17,6 +17,7 @@ removed, so a body is named by the joint that moves it in the URDF.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -68,8 +69,7 @@ def plant_robot(plant: PlantConfig, model_robot: Robot, base_dir: Path | None = 
         frame = model.frames[model.getFrameId(payload.frame)]
         jid = frame.parentJoint
         model.inertias[jid] = model.inertias[jid] + frame.placement.act(_payload_inertia(payload))
-    return Robot(name=f"{source.name} (plant)", model=model, source=source.source,
-                 urdf_path=source.urdf_path, package_dirs=source.package_dirs)
+    return replace(source, name=f"{source.name} (plant)", model=model, _visual_model=None)
 
 
 def _inertia_matrix(values: list[float]) -> np.ndarray:

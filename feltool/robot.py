@@ -6,17 +6,16 @@ where it came from and the joint-name bookkeeping the rest of feltool needs.
 
 from __future__ import annotations
 
-import os
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from feltool.bounds import MAX_URDF_BYTES, MAX_URDF_LINKS
+from feltool.bounds import MAX_URDF_BYTES
 from feltool.errors import RobotError
-from feltool.physical import inertia_problem, mass_problem
+from feltool.physical import mass_problem
+from feltool.urdf import read_urdf
 
 ERD_PREFIX = "example-robot-data:"
 
@@ -53,6 +52,9 @@ class Robot:
         source: What the user wrote to get it (name, path or ``example-robot-data:NAME``).
         urdf_path: The URDF file, when there is one.
         package_dirs: Directories used to resolve ``package://`` mesh paths.
+        urdf_xml: The validated URDF description the model was built from
+            (:mod:`feltool.urdf`; read from ``urdf_path`` when not given).
+        warnings: What lenient reading accepted, one line each (:mod:`feltool.urdf`).
         visual_model: Pinocchio geometry model of the visuals, built lazily for viewers.
     """
 
@@ -62,6 +64,8 @@ class Robot:
     urdf_path: Path | None = None
     package_dirs: list[str] = field(default_factory=list)
     _visual_model: pin.GeometryModel | None = None
+    urdf_xml: str | None = None
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def joint_names(self) -> list[str]:
@@ -107,18 +111,35 @@ class Robot:
         return float(sum(inertia.mass for inertia in self.model.inertias))
 
     @property
-    def visual_model(self) -> pin.GeometryModel:
-        if self._visual_model is None:
+    def description(self) -> str:
+        """The validated URDF description (mesh paths absolute), for models built alike."""
+        if self.urdf_xml is None:
             if self.urdf_path is None:
-                raise RobotError(f"robot '{self.name}' has no URDF to take visuals from")
-            self._visual_model = pin.buildGeomFromUrdf(
-                self.model, str(self.urdf_path), pin.GeometryType.VISUAL,
-                package_dirs=self.package_dirs)
+                raise RobotError(f"robot '{self.name}' has no URDF")
+            self.urdf_xml = load_urdf(self.urdf_path, package_dirs=self.package_dirs).urdf_xml
+        return self.urdf_xml
+
+    @property
+    def visual_model(self) -> pin.GeometryModel:
+        """The visuals of the URDF's description (meshes by absolute path), built on first use."""
+        if self._visual_model is None:
+            self._visual_model = pin.buildGeomFromUrdfString(self.model, self.description,
+                                                             pin.GeometryType.VISUAL)
         return self._visual_model
 
 
+def robot_spec(value) -> tuple[str, bool]:
+    """``(source, lenient)`` of a config's ``robot`` value: a string (lenient), or the mapping
+    ``{source, lenient}``; ``("", True)`` when it is neither (the schema reports that)."""
+    if isinstance(value, str):
+        return value, True
+    if isinstance(value, dict) and isinstance(value.get("source"), str):
+        return value["source"], value.get("lenient", True) is not False
+    return "", True
+
+
 def load_robot(spec: str, base_dir: Path | None = None,
-               package_dirs: list[str] | None = None) -> Robot:
+               package_dirs: list[str] | None = None, lenient: bool = True) -> Robot:
     """Load a robot by bundled name, URDF path, or ``example-robot-data:NAME``.
 
     Args:
@@ -126,6 +147,8 @@ def load_robot(spec: str, base_dir: Path | None = None,
         base_dir: Directory that relative URDF paths are resolved against (the config's).
         package_dirs: Extra directories for ``package://`` mesh paths (relative ones resolve
             against ``base_dir``).
+        lenient: Read the URDF dialects of :mod:`feltool.urdf` (example-robot-data's robots
+            are taken as shipped either way).
 
     Raises:
         RobotError: naming the file and element when the robot cannot be loaded.
@@ -138,10 +161,10 @@ def load_robot(spec: str, base_dir: Path | None = None,
             path = base_dir / path
         dirs = [str(Path(d) if Path(d).is_absolute() or base_dir is None else base_dir / d)
                 for d in (package_dirs or [])]
-        return load_urdf(path, source=spec, package_dirs=dirs)
+        return load_urdf(path, source=spec, package_dirs=dirs, lenient=lenient)
     bundled = data_dir("robots") / f"{spec}.urdf"
     if bundled.is_file():
-        return load_urdf(bundled, source=spec, name=spec)
+        return load_urdf(bundled, source=spec, name=spec, lenient=lenient)
     raise RobotError(
         f"unknown robot '{spec}': not a bundled robot ({', '.join(bundled_robots())}), not a "
         f"path to a .urdf file, and not '{ERD_PREFIX}NAME'"
@@ -149,8 +172,9 @@ def load_robot(spec: str, base_dir: Path | None = None,
 
 
 def load_urdf(path: Path, source: str | None = None, name: str | None = None,
-              package_dirs: list[str] | None = None) -> Robot:
-    """Load a URDF file, checking it first so that problems name the file and the element."""
+              package_dirs: list[str] | None = None, lenient: bool = True) -> Robot:
+    """Load a URDF file through :func:`feltool.urdf.read_urdf` (problems name the file and the
+    element; ``lenient`` reads the dialects described there)."""
     path = Path(path)
     if not path.is_file():
         raise RobotError(f"URDF file not found: {path}")
@@ -168,17 +192,13 @@ def load_urdf(path: Path, source: str | None = None, name: str | None = None,
     if not text.strip():
         raise RobotError(f"{path}: the URDF file is empty")
     dirs = [str(path.parent)] + list(package_dirs or [])
-    _check_urdf_xml(text, str(path), path.parent, dirs)
-    try:
-        model = pin.buildModelFromXML(text)
-    except Exception as exc:  # Pinocchio raises ValueError/RuntimeError with its own text
-        raise RobotError(f"{path}: Pinocchio could not build a model: {exc}") from None
-    return Robot(name=name or path.stem, model=model, source=source or str(path),
-                 urdf_path=path, package_dirs=dirs)
+    robot = _from_text(text, str(path), path.parent, dirs, lenient)
+    robot.name, robot.source, robot.urdf_path = name or path.stem, source or str(path), path
+    return robot
 
 
 def load_urdf_string(text: str, name: str = "robot", package_dirs: list[str] | None = None,
-                     base_dir: Path | None = None) -> Robot:
+                     base_dir: Path | None = None, lenient: bool = True) -> Robot:
     """A robot from URDF text (already expanded: no xacro), with the same checks as a file;
     mesh paths resolve against ``base_dir`` (default: the current directory) and
     ``package_dirs``."""
@@ -186,244 +206,29 @@ def load_urdf_string(text: str, name: str = "robot", package_dirs: list[str] | N
     if not text.strip():
         raise RobotError(f"{where}: the URDF is empty")
     base = Path(base_dir) if base_dir is not None else Path.cwd()
-    dirs = [str(base)] + list(package_dirs or [])
-    _check_urdf_xml(text, where, base, dirs)
+    robot = _from_text(text, where, base, [str(base)] + list(package_dirs or []), lenient)
+    robot.name, robot.source = name, where
+    return robot
+
+
+def _from_text(text: str, where: str, base: Path, dirs: list[str], lenient: bool) -> Robot:
+    """The Pinocchio model of a URDF's validated description; a joint without limits gets
+    infinite ones (Pinocchio's own value for a continuous joint's effort and velocity)."""
+    description = read_urdf(text, where, base, dirs, lenient)
     try:
-        model = pin.buildModelFromXML(text)
-    except Exception as exc:
+        model = pin.buildModelFromXML(description.xml)
+    except Exception as exc:  # Pinocchio raises ValueError/RuntimeError with its own text
         raise RobotError(f"{where}: Pinocchio could not build a model: {exc}") from None
-    return Robot(name=name, model=model, source=where, urdf_path=None, package_dirs=dirs)
-
-
-def _check_urdf_xml(text: str, where: str, base: Path | None = None,
-                    package_dirs: list[str] | None = None) -> None:
-    """Structural checks Pinocchio reports badly or not at all: well-formed XML, a tree of
-    links (no dangling references, no second parent, no cycle), masses, existing mesh files."""
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        line, col = exc.position
-        raise RobotError(f"{where}:{line}:{col}: URDF is not well-formed XML ({exc})") from None
-    if root.tag != "robot":
-        raise RobotError(f"{where}: root element is <{root.tag}>, a URDF needs <robot>")
-    links = {link.get("name"): link for link in root.findall("link")}
-    if not links:
-        raise RobotError(f"{where}: <robot> has no <link> elements")
-    if len(links) > MAX_URDF_LINKS:
-        raise RobotError(f"{where}: <robot> has {len(links)} links; feltool loads at most "
-                         f"{MAX_URDF_LINKS} (a real robot has a few dozen)")
-    children: dict[str, list[tuple[str, str]]] = {}
-    for joint in root.findall("joint"):
-        jname = joint.get("name")
-        for tag in ("parent", "child"):
-            el = joint.find(tag)
-            if el is None or el.get("link") not in links:
-                ref = None if el is None else el.get("link")
-                raise RobotError(f"{where}: <joint name=\"{jname}\"> refers to {tag} link "
-                                 f"'{ref}', which is not a <link> of the URDF")
-        children.setdefault(joint.find("parent").get("link"), []).append(
-            (joint.find("child").get("link"), joint.get("type", "")))
-
-    parent_of: dict[str, str] = {}
-    for joint in root.findall("joint"):
-        child = joint.find("child").get("link")
-        if child in parent_of:
-            raise RobotError(f"{where}: <link name=\"{child}\"> is the child of two joints "
-                             f"('{parent_of[child]}' and '{joint.get('name')}'); a URDF must be "
-                             "a tree")
-        parent_of[child] = joint.get("name")
-    parent_link = {j.find("child").get("link"): j.find("parent").get("link")
-                   for j in root.findall("joint")}
-    for start in parent_link:
-        seen, link = {start}, start
-        while link in parent_link:
-            link = parent_link[link]
-            if link in seen:
-                raise RobotError(f"{where}: the joints form a cycle through <link name=\"{link}\">;"
-                                 " a URDF must be a tree")
-            seen.add(link)
-    _check_numbers(root, where)
-    _check_physics(root, where)
-    if base is not None:
-        _check_meshes(root, where, base, package_dirs or [])
-
-    def link_mass(name: str) -> float:
-        inertial = links[name].find("inertial")
-        mass = None if inertial is None else inertial.find("mass")
-        try:
-            return 0.0 if mass is None else float(mass.get("value", "0"))
-        except ValueError:
-            raise RobotError(f"{where}: <link name=\"{name}\"> has a mass that is not a "
-                             f"number: '{mass.get('value')}'") from None
-
-    def body_mass(name: str) -> float:
-        """Mass of a link and everything welded to it by fixed joints (iteratively: a long
-        chain must not exhaust Python's recursion)."""
-        total, stack = 0.0, [name]
-        while stack:
-            link = stack.pop()
-            total += link_mass(link)
-            stack += [c for c, t in children.get(link, []) if t == "fixed"]
-        return total
-
-    for joint in root.findall("joint"):
-        if joint.get("type") in ("fixed", None):
-            continue
-        child = joint.find("child").get("link")
-        if body_mass(child) <= 0.0 and not _subtree_has_mass(child, children, link_mass):
-            raise RobotError(
-                f"{where}: <link name=\"{child}\"> (moved by <joint name=\"{joint.get('name')}\">) "
-                "has no <inertial> mass, and nothing it carries has any: its joint would have "
-                "no inertia and forward dynamics would be singular"
-            )
-
-
-def _mesh_candidates(filename: str, base: Path,
-                     package_dirs: list[str]) -> list[tuple[Path, list[Path]]]:
-    """Files a mesh reference may mean, each with the folders it must stay inside."""
-    roots = [Path(base)] + [Path(d) for d in package_dirs]
-    if filename.startswith("package://"):
-        rest = filename[len("package://"):].lstrip("/")
-        package, _, inner = rest.partition("/")
-        out = []
-        for d in map(Path, package_dirs):
-            out += [(d / rest, [d]), (d / inner, [d]), (d.parent / rest, [d.parent / package])]
-        return out
-    if filename.startswith("file://"):
-        return [(Path(filename[len("file://"):]), roots)]
-    return [(Path(base) / filename, roots)]
-
-
-def _inside(path: Path, roots: list[Path]) -> bool:
-    """Whether ``path`` lies inside one of ``roots``, judged on the normalised path text (so a
-    ``../`` cannot climb out, while a symbolic link inside a root stays allowed)."""
-    target = os.path.normpath(os.path.abspath(path))
-    for root in roots:
-        top = os.path.normpath(os.path.abspath(root))
-        if target == top or target.startswith(top.rstrip(os.sep) + os.sep):
-            return True
-    return False
-
-
-def resolve_mesh(filename: str, base: Path, package_dirs: list[str]) -> Path | None:
-    """The file a URDF mesh reference points to (``package://``, ``file://``, relative to the
-    URDF, or absolute), or None when it does not exist or lies outside the URDF's folder and
-    the package dirs."""
-    return next((c for c, roots in _mesh_candidates(filename, base, package_dirs)
-                 if c.is_file() and _inside(c, roots)), None)
-
-
-def _check_meshes(root, where: str, base: Path, package_dirs: list[str]) -> None:
-    """Every mesh file exists and lies inside the URDF's folder or a package dir: a path that
-    climbs out (``../../elsewhere``) is refused, so a URDF cannot make feltool (or the mesh
-    loader behind the viewer) read arbitrary files."""
-    for link in root.findall("link"):
-        for kind in ("visual", "collision"):
-            for element in link.findall(kind):
-                mesh = element.find("geometry/mesh")
-                if mesh is None:
-                    continue
-                filename = mesh.get("filename", "")
-                if resolve_mesh(filename, base, package_dirs) is not None:
-                    continue
-                if any(not _inside(c, roots)
-                       for c, roots in _mesh_candidates(filename, base, package_dirs)):
-                    raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
-                                     f"'{filename}' lies outside the URDF's folder "
-                                     f"{os.path.abspath(base)} and the package dirs "
-                                     f"{[d for d in package_dirs if d != str(base)]}; refusing "
-                                     "to read it (put the mesh there, "
-                                     "or add its folder to package_dirs)")
-                raise RobotError(f"{where}: <link name=\"{link.get('name')}\"> <{kind}> mesh "
-                                 f"'{filename}' not found (looked relative to {base} and in "
-                                 f"package dirs {package_dirs})")
-
-
-#: Numeric attributes of URDF elements (inside a <link> or <joint>), each a list of numbers.
-_NUMERIC = {
-    "origin": ("xyz", "rpy"), "axis": ("xyz",), "mass": ("value",),
-    "inertia": ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"),
-    "limit": ("lower", "upper", "effort", "velocity"), "dynamics": ("damping", "friction"),
-    "safety_controller": ("soft_lower_limit", "soft_upper_limit", "k_position", "k_velocity"),
-    "calibration": ("rising", "falling"), "mimic": ("multiplier", "offset"),
-    "box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",), "mesh": ("scale",),
-}
-
-
-def _owner(element) -> str:
-    return f"<{element.tag} name=\"{element.get('name')}\">"
-
-
-def _numbers(owner, el, attr: str, where: str) -> list[float] | None:
-    text = el.get(attr)
-    if text is None:
-        return None
-    try:
-        values = [float(x) for x in text.split()]
-    except ValueError:
-        raise RobotError(f"{where}: {_owner(owner)} <{el.tag} {attr}=\"{text}\">: not a number"
-                         ) from None
-    if not all(np.isfinite(values)):
-        raise RobotError(f"{where}: {_owner(owner)} <{el.tag} {attr}=\"{text}\">: not a finite "
-                         "number (NaN and infinity are not physical values)")
-    return values
-
-
-def _check_numbers(root, where: str) -> None:
-    """Every number of every link and joint parses and is finite (urdfdom reads ``nan`` and
-    ``inf`` in some places and not others)."""
-    for owner in root.findall("link") + root.findall("joint"):
-        for el in owner.iter():
-            for attr in _NUMERIC.get(el.tag, ()):
-                _numbers(owner, el, attr, where)
-
-
-def _check_physics(root, where: str) -> None:
-    """Masses, inertias (:mod:`feltool.physical`), joint axes and limits that a real robot can
-    have; each problem names the element."""
-    for link in root.findall("link"):
-        inertial = link.find("inertial")
-        if inertial is None:
-            continue
-        mass = inertial.find("mass")
-        if mass is not None:
-            problem = mass_problem(float(mass.get("value", "0")), allow_zero=True)
-            if problem:
-                raise RobotError(f"{where}: {_owner(link)} <inertial>: {problem}")
-        inertia = inertial.find("inertia")
-        if inertia is not None:
-            values = [float(inertia.get(k, "0")) for k in _NUMERIC["inertia"]]
-            problem = inertia_problem(values)
-            if problem:
-                raise RobotError(f"{where}: {_owner(link)} <inertial> <inertia>: {problem}")
-    for joint in root.findall("joint"):
-        kind = joint.get("type")
-        axis = joint.find("axis")
-        if kind in ("revolute", "continuous", "prismatic") and axis is not None:
-            xyz = _numbers(joint, axis, "xyz", where)
-            if xyz is None or len(xyz) != 3:
-                raise RobotError(f"{where}: {_owner(joint)} <axis>: needs xyz with 3 numbers")
-            if float(np.linalg.norm(xyz)) < 1e-12:
-                raise RobotError(f"{where}: {_owner(joint)} <axis xyz=\"{axis.get('xyz')}\">: "
-                                 "the zero vector is no axis (a non-unit axis is normalised, as "
-                                 "Pinocchio does)")
-        limit = joint.find("limit")
-        if limit is not None:
-            for attr in ("effort", "velocity"):
-                value = _numbers(joint, limit, attr, where)
-                if value is not None and value[0] < 0:
-                    raise RobotError(f"{where}: {_owner(joint)} <limit {attr}=\""
-                                     f"{limit.get(attr)}\">: must be at least 0 (0 = no limit)")
-
-
-def _subtree_has_mass(name, children, link_mass) -> bool:
-    stack = [c for c, _ in children.get(name, [])]
-    while stack:
-        link = stack.pop()
-        if link_mass(link) > 0:
-            return True
-        stack += [c for c, _ in children.get(link, [])]
-    return False
+    for joint_name, missing in description.unbounded.items():
+        joint = model.joints[model.getJointId(joint_name)]
+        if "position" in missing:
+            model.lowerPositionLimit[joint.idx_q:joint.idx_q + joint.nq] = -np.inf
+            model.upperPositionLimit[joint.idx_q:joint.idx_q + joint.nq] = np.inf
+        for kind, limits in (("effort", model.effortLimit), ("velocity", model.velocityLimit)):
+            if kind in missing:
+                limits[joint.idx_v] = np.inf
+    return Robot(name="robot", model=model, source=where, package_dirs=dirs,
+                 urdf_xml=description.xml, warnings=description.warnings)
 
 
 def _load_erd(name: str, source: str) -> Robot:
@@ -460,61 +265,3 @@ def _check_model_numbers(model: pin.Model, where: str) -> None:
             problem = "its rotational inertia has an entry that is not a finite number"
         if problem:
             raise RobotError(f"{where}: the body moved by joint '{model.names[jid]}': {problem}")
-
-
-def describe(robot: Robot) -> dict:
-    """Joints (name, type, axis, limits), bodies with masses and total mass, as plain data."""
-    model = robot.model
-    joints = []
-    for jid in range(1, model.njoints):
-        joint = model.joints[jid]
-        axis = None
-        try:
-            axis = [round(float(x), 6) for x in joint.extract().axis]
-        except AttributeError:
-            short = joint.shortname()
-            for letter, vec in (("X", [1, 0, 0]), ("Y", [0, 1, 0]), ("Z", [0, 0, 1])):
-                if short.endswith(letter):
-                    axis = vec
-        lo, hi = joint.idx_q, joint.idx_q + joint.nq
-        joints.append({
-            "name": model.names[jid], "type": joint.shortname().removeprefix("JointModel"),
-            "axis": axis, "nq": joint.nq, "nv": joint.nv,
-            "lower": float(model.lowerPositionLimit[lo:hi].min()) if joint.nq else 0.0,
-            "upper": float(model.upperPositionLimit[lo:hi].max()) if joint.nq else 0.0,
-            "effort": float(model.effortLimit[joint.idx_v]) if joint.nv else 0.0,
-            "actuated": bool(joint.nv and model.effortLimit[joint.idx_v] > 0),
-            "parent": model.names[model.parents[jid]],
-        })
-    bodies = [{"name": model.names[jid], "mass": float(model.inertias[jid].mass)}
-              for jid in range(1, model.njoints)]
-    return {"name": robot.name, "source": robot.source, "joints": joints, "bodies": bodies,
-            "total_mass": robot.total_mass}
-
-
-def config_skeleton(robot: Robot) -> str:
-    """A YAML experiment skeleton listing every joint of ``robot`` (all locked, with the roles
-    to choose from), ready to edit."""
-    info = describe(robot)
-    lines = [f"name: {robot.name}_experiment", f"robot: {robot.source}", "gravity: 9.81",
-             "period_s: 1.0", "sim: {rate_hz: 100, cycles: 100}", "primitives: {basis: 10}",
-             "joints:   # role: track | stabilize | passive | locked (joints not listed are locked at 0)"]
-    for j in info["joints"]:
-        if j["nv"] != 1:
-            lines.append(f"  # {j['name']}: {j['type']} joint ({j['nv']} DoF) - can only be locked")
-            continue
-        mid = 0.5 * (max(j["lower"], -3.14) + min(j["upper"], 3.14))
-        lines.append(f"  {j['name']}: {{role: locked, posture: {mid:.3g}}}"
-                     f"   # {j['type']}, limits [{j['lower']:.3g}, {j['upper']:.3g}]")
-    lines += ["  # e.g. a tracked joint:",
-              "  #   role: track",
-              "  #   demo: {kind: sine, mean: 0.0, amplitude: 0.3}",
-              "  #   gains: {kp: 100.0, kd: 10.0}",
-              "  # e.g. a stabilizing joint whose RMP is learned:",
-              "  #   role: stabilize",
-              "  #   target: {frame: LINK, vector: [0, 0, 1], about: [0, 1, 0], value: 0.0}",
-              "  #   gains: {kp: 50.0, kd: 5.0}",
-              "  #   learn: {init: random}",
-              "learning: {error: stabilizing, rates: {weights: 0.2, goal: 2.0e-5}}",
-              "seeds: 5"]
-    return "\n".join(lines) + "\n"

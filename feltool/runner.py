@@ -381,7 +381,7 @@ def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult]) -> 
         seeds.append(entry)
     summary = {"config": exp.config.name, "feltool_version": __version__,
                "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-               "robot": exp.config.robot, "joints": exp.joints,
+               "robot": exp.config.robot_source, "joints": exp.joints,
                "learned_joints": exp.learned_joints, "error_joints": exp.error_joints,
                "seeds": seeds, "aggregate": aggregate(seeds)}
     write_json(out_dir / "summary.json", summary)

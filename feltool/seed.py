@@ -17,6 +17,7 @@ import numpy as np
 
 from feltool.checkpoint import Checkpointer, Interrupted, stop_requested
 from feltool.control import wrap
+from feltool.divergence import explain as explain_divergence
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.events import changed_model, plant_for_cycle
 from feltool.fel import feedforward
@@ -158,7 +159,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             checked = True
             hits[0] += out.limit_hits[0]
             hits[1] += out.limit_hits[1]
-        reason = _divergence(exp, out)
+        reason = explain_divergence(exp, out, cycle, rows)
         if reason:
             break
         row = _metrics(exp, seed, cycle, out, theta)
@@ -628,21 +629,6 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
         theta = learner.step(theta, J, u_err[None])
     return CycleLog(Q, V, U, q, v, Urows, Uerr), Qd, theta
-
-
-def _divergence(exp: Experiment, out: CycleOutcome) -> str | None:
-    sim = exp.config.sim
-    if out.fall:
-        return out.fall
-    if not out.finite:
-        return "the state became non-finite"
-    if out.max_speed > sim.max_velocity:
-        return (f"a joint velocity reached {out.max_speed:.3g} rad/s "
-                f"(sim.max_velocity = {sim.max_velocity})")
-    if out.max_error > sim.max_error_rad:
-        return (f"a controlled quantity was {out.max_error:.3g} rad from its reference "
-                f"(sim.max_error_rad = {sim.max_error_rad}): the robot fell")
-    return None
 
 
 def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,

@@ -23,11 +23,15 @@ the ``meshcat`` Python package, so nothing is fetched from the network):
   the context manager, ``atexit``, and a watchdog in the server itself that exits when the parent
   process is gone (SIGTERM, SIGKILL, crash).
 
-Geometry: every visual ``GeometryObject`` of ``robot.visual_model`` becomes a meshcat object:
-boxes, cylinders, cones, spheres, ellipsoids, capsules and ``.dae``/``.stl``/``.obj`` meshes, in
-the colour of its ``meshColor`` (a Collada mesh without a URDF material keeps its own materials
-and textures, as Pinocchio's MeshcatVisualizer does). Per frame, the placements come from
-``pinocchio.updateGeometryPlacements``.
+Geometry: every visual ``GeometryObject`` of ``robot.visual_model`` becomes the meshcat object
+Pinocchio's own ``pinocchio.visualize.MeshcatVisualizer`` makes of it (its
+``loadViewerGeometryObject``, drawing into a meshcat window that keeps the commands instead of
+sending them): primitives (boxes, cylinders, cones, spheres, ellipsoids, capsules), and mesh
+files (``.dae``, ``.stl``, ``.obj``) given to three.js's loaders, a Collada file with its own
+materials and textures unless the URDF gives the visual a colour. The translucent ghost is drawn
+from the triangles Pinocchio loaded (a three.js Collada file keeps its own opaque materials).
+Per frame, the placements come from ``pinocchio.updateGeometryPlacements``; a mesh's scale is
+part of its object (the animation moves, it does not scale).
 """
 
 from __future__ import annotations
@@ -45,10 +49,8 @@ import sys
 import tempfile
 import threading
 import time
-import uuid
 import warnings
 import webbrowser
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -65,13 +67,6 @@ GHOST = "ghost"
 BACKGROUND = ((0.98, 0.98, 0.98), (0.80, 0.80, 0.84))  # top, bottom: light grey
 DEFAULT_GHOST_OPACITY = 0.3
 HOLD_SECONDS = 0.5  # the last pose of a clip is held this long before the next clip starts
-
-# Three.js cylinders, cones and capsules run along their y axis; coal's along z.
-_Y_TO_Z = np.array([[1.0, 0.0, 0.0, 0.0],
-                    [0.0, 0.0, -1.0, 0.0],
-                    [0.0, 1.0, 0.0, 0.0],
-                    [0.0, 0.0, 0.0, 1.0]])
-
 
 class ViewerError(FeltoolError):
     """The viewer could not start, reach its server, or draw what it was given."""
@@ -107,11 +102,6 @@ def _viewer_js() -> str:
     return re.sub(r"</(script)", r"<\\/\1", text, flags=re.IGNORECASE)
 
 
-def _color_int(rgba) -> int:
-    r, g, b = (int(round(255 * min(max(float(c), 0.0), 1.0))) for c in list(rgba)[:3])
-    return (r << 16) | (g << 8) | b
-
-
 def _colmajor(matrix: np.ndarray) -> list[float]:
     """A 4x4 matrix as three.js wants it in JSON: column-major."""
     return [float(x) for x in np.asarray(matrix, dtype=float).T.flatten()]
@@ -129,146 +119,54 @@ def _node_names(visual_model: pin.GeometryModel) -> list[str]:
     return names
 
 
-def _dae_resources(mesh_path: Path) -> dict[str, str]:
-    """Texture images of a Collada file as data URIs (keyed as the file names them)."""
-    resources: dict[str, str] = {}
-    try:
-        root = ET.parse(mesh_path).getroot()
-    except (ET.ParseError, OSError):
-        return resources
-    refs = [el.text.strip() for lib in root.iter() if lib.tag.endswith("library_images")
-            for el in lib.iter() if el.tag.endswith("init_from") and el.text]
-    for ref in refs:
-        img = Path(ref.removeprefix("file://"))
-        if not img.is_absolute():
-            img = (mesh_path.parent / img).resolve()
-        if not img.is_file():
-            warnings.warn(f"{mesh_path}: texture '{ref}' not found", stacklevel=4)
-            continue
-        mime = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg",
-                ".bmp": "image/bmp", ".gif": "image/gif"}.get(img.suffix.lower(),
-                                                               "application/octet-stream")
-        resources[ref] = f"data:{mime};base64," + base64.b64encode(img.read_bytes()).decode()
-    return resources
+class _CommandWindow:
+    """A meshcat window that keeps the commands sent to it (``meshcat.Visualizer(window=...)``
+    sends every command through its window), lowered to the dicts a server would pack."""
+
+    def __init__(self):
+        self.commands: list[dict] = []
+
+    def send(self, command) -> None:
+        self.commands.append(command.lower())
 
 
-def _lower_geometry_object(gobj: pin.GeometryObject, rgba, file_materials: bool = False,
-                           cache: dict | None = None, key=None) -> dict | None:
-    """The three.js JSON ("object" of a meshcat set_object command) for one geometry object.
+class _PinocchioGeometry:
+    """Pinocchio's MeshcatVisualizer as a converter: a geometry object in, the meshcat
+    ``set_object`` command it would send out (or None, with Pinocchio's warning)."""
 
-    Meshes are drawn from the triangles Pinocchio loaded (compact, already scaled, what the
-    dynamics sees), or from the mesh file when there are none. With ``file_materials`` a Collada
-    file is drawn from the file itself with its own materials and textures. Returns None, with a
-    warning, for geometry meshcat cannot draw.
-    """
-    mg, umsgpack = _meshcat()
-    import coal
+    def __init__(self, robot):
+        _meshcat()  # imports meshcat without its pyzmq deprecation warning
+        import meshcat
+        from pinocchio.visualize import MeshcatVisualizer
 
-    geom = gobj.geometry
-    scale = np.diag(np.concatenate([np.asarray(gobj.meshScale, dtype=float).reshape(3), [1.0]]))
-    mesh_path = Path(gobj.meshPath) if gobj.meshPath else None
-    suffix = mesh_path.suffix.lower() if mesh_path else ""
-    has_file = suffix in (".dae", ".stl", ".obj") and mesh_path is not None and mesh_path.is_file()
-    rgba = [float(c) for c in rgba]
-    material = mg.MeshPhongMaterial(color=_color_int(rgba), opacity=rgba[3],
-                                    transparent=rgba[3] < 1.0, depthWrite=rgba[3] >= 1.0)
-    intrinsic = np.eye(4)
-    shape = None
-    if file_materials and has_file and suffix == ".dae":
-        return {
-            "metadata": {"version": 4.5, "type": "Object"},
-            "geometries": [], "materials": [],
-            "object": {"uuid": str(uuid.uuid4()), "type": "_meshfile_object", "format": "dae",
-                       "data": mesh_path.read_text(encoding="utf-8", errors="replace"),
-                       "resources": _dae_resources(mesh_path), "matrix": _colmajor(scale)},
-        }
-    if isinstance(geom, coal.Box):
-        shape = mg.Box([float(x) for x in 2.0 * np.asarray(geom.halfSide)])
-    elif isinstance(geom, coal.Sphere):
-        shape = mg.Sphere(float(geom.radius))
-    elif isinstance(geom, coal.Ellipsoid):
-        shape = mg.Sphere(1.0)
-        intrinsic = np.diag(np.concatenate([np.asarray(geom.radii, dtype=float), [1.0]]))
-    elif isinstance(geom, coal.Cylinder):
-        shape = mg.Cylinder(2.0 * float(geom.halfLength), float(geom.radius))
-        intrinsic = _Y_TO_Z
-    elif isinstance(geom, coal.Cone):
-        shape = mg.Cylinder(2.0 * float(geom.halfLength), radiusTop=0.0,
-                            radiusBottom=float(geom.radius))
-        intrinsic = _Y_TO_Z
-    elif isinstance(geom, coal.Capsule):
-        shape = _capsule(mg, 2.0 * float(geom.halfLength), float(geom.radius))
-    elif isinstance(geom, (coal.BVHModelBase, coal.ConvexBase)):
-        if cache is not None and key is not None and key in cache:
-            shape = cache[key]
-        else:
-            shape = _triangles(mg, geom)
-            if cache is not None and key is not None:
-                cache[key] = shape
-        if shape is not None:
-            scale = np.eye(4)  # Pinocchio scaled the triangles when it loaded them
-    if shape is None and has_file:
-        if suffix == ".stl":
-            data = umsgpack.Ext(0x12, mesh_path.read_bytes())  # 0x12: Uint8Array for meshcat
-        else:
-            data = mesh_path.read_text(encoding="utf-8", errors="replace")
-        shape = _MeshFile(mg, data, suffix[1:])
-    if shape is None:
-        what = f"mesh file '{gobj.meshPath}'" if gobj.meshPath else type(geom).__name__
-        warnings.warn(f"viewer: cannot draw geometry '{gobj.name}' ({what}); left out",
-                      stacklevel=3)
-        return None
-    data = {"metadata": {"version": 4.5, "type": "Object"}, "geometries": [], "materials": []}
-    geometry_uuid = shape.lower_in_object(data)
-    material_uuid = material.lower_in_object(data)
-    data["object"] = {"uuid": str(uuid.uuid4()), "type": "Mesh", "geometry": geometry_uuid,
-                      "material": material_uuid, "matrix": _colmajor(scale @ intrinsic)}
-    return data
+        self.window = _CommandWindow()
+        self.viz = MeshcatVisualizer(robot.model, None, robot.visual_model)
+        self.viz.initViewer(viewer=meshcat.Visualizer(window=self.window))
 
+    def command(self, gobj: pin.GeometryObject, group: str, name: str, rgba=None,
+                from_file: bool = True) -> dict | None:
+        """The object of ``gobj`` at ``{ROOT}/{group}/{name}``, in ``rgba`` (default its URDF
+        colour); ``from_file=False`` draws a mesh from the triangles Pinocchio loaded."""
+        import coal
+        from pinocchio.visualize.meshcat_visualizer import hasMeshFileInfo
 
-def _triangles(mg, geom):
-    """A coal triangle mesh or convex polytope as a meshcat triangle mesh (None if empty)."""
-    import coal
-
-    try:
-        if isinstance(geom, coal.BVHModelBase):
-            n_tris, tri, verts = geom.num_tris, geom.tri_indices, geom.vertices
-        else:
-            n_tris, tri, verts = geom.num_polygons, geom.polygons, geom.points
-        if not n_tris:
-            return None
-        faces = np.array([[t[0], t[1], t[2]] for t in (tri(k) for k in range(n_tris))],
-                         dtype=np.uint32)
-        vertices = np.asarray(verts(), dtype=np.float32).reshape(-1, 3)
-    except Exception:  # pragma: no cover - coal API differences
-        return None
-    return mg.TriangularMeshGeometry(vertices, faces)
-
-
-class _MeshFile:
-    """A mesh file given to three.js's own loaders (meshcat's ``_meshfile_geometry``)."""
-
-    def __init__(self, mg, data, fmt: str):
-        self.uuid = str(uuid.uuid4())
-        self.data = data
-        self.fmt = fmt
-
-    def lower_in_object(self, object_data: dict) -> str:
-        object_data["geometries"].append({"uuid": self.uuid, "type": "_meshfile_geometry",
-                                          "format": self.fmt, "data": self.data})
-        return self.uuid
-
-
-def _capsule(mg, length: float, radius: float):
-    """A capsule along z as a triangle mesh (Pinocchio's generator when available)."""
-    try:
-        from pinocchio.visualize.meshcat_visualizer import createCapsule
-
-        return createCapsule(length, radius)
-    except Exception:  # pragma: no cover - older Pinocchio
-        geom = mg.Cylinder(length + 2 * radius, radius)
-        geom.intrinsic_transform = lambda: _Y_TO_Z
-        return geom
+        obj = pin.GeometryObject(gobj)
+        obj.name = name
+        if not from_file:
+            obj.meshPath = ""  # Pinocchio then draws the loaded (already scaled) triangles
+        scaled = hasMeshFileInfo(obj) or isinstance(obj.geometry, coal.ShapeBase)
+        self.viz.viewerVisualGroupName = f"{ROOT.removeprefix('/meshcat/')}/{group}"
+        sent = len(self.window.commands)
+        self.viz.loadViewerGeometryObject(obj, pin.GeometryType.VISUAL,
+                                          None if rgba is None else np.asarray(rgba, float))
+        if len(self.window.commands) == sent:
+            return None  # Pinocchio warned why
+        cmd = self.window.commands.pop()
+        inner = cmd["object"]["object"]
+        if scaled and np.any(obj.meshScale != 1.0):  # Pinocchio scales each placement
+            S = np.diag(np.concatenate([np.asarray(obj.meshScale, float).reshape(3), [1.0]]))
+            inner["matrix"] = _colmajor(S @ np.reshape(inner["matrix"], (4, 4)).T)
+        return cmd
 
 
 class _Scene:
@@ -276,7 +174,8 @@ class _Scene:
 
     def __init__(self, robot, ghost: bool, ghost_color=None,
                  ghost_opacity: float = DEFAULT_GHOST_OPACITY,
-                 ghost_offset=(0.0, 0.0, 0.0), mesh_materials: bool = False):
+                 ghost_offset=(0.0, 0.0, 0.0), mesh_materials: bool = True):
+        self.robot = robot
         self.model: pin.Model = robot.model
         self.visual_model: pin.GeometryModel = robot.visual_model
         self.data = self.model.createData()
@@ -304,26 +203,23 @@ class _Scene:
         return q
 
     def object_commands(self) -> list[dict]:
+        """``set_object`` of every visual (system, and ghost), as Pinocchio's MeshcatVisualizer
+        draws them (:class:`_PinocchioGeometry`)."""
+        convert = _PinocchioGeometry(self.robot)
         cmds = []
         self.drawn = []
-        cache: dict = {}
         for i, gobj in enumerate(self.visual_model.geometryObjects):
-            obj = _lower_geometry_object(
-                gobj, gobj.meshColor, cache=cache, key=i,
-                file_materials=self.mesh_materials and not gobj.overrideMaterial)
+            obj = convert.command(gobj, SYSTEM, self.names[i], from_file=self.mesh_materials)
             if obj is None:
                 continue
             self.drawn.append(i)
-            cmds.append({"type": "set_object", "path": self.path(SYSTEM, i), "object": obj})
+            cmds.append(obj)
             if self.ghost:
-                if self.ghost_color is None:
-                    rgba = list(gobj.meshColor)[:3] + [self.ghost_opacity]
-                else:
-                    rgba = [float(c) for c in self.ghost_color]
-                    rgba = rgba[:3] + [rgba[3] if len(rgba) > 3 else self.ghost_opacity]
-                gobj_cmd = _lower_geometry_object(gobj, rgba, cache=cache, key=i)
-                cmds.append({"type": "set_object", "path": self.path(GHOST, i),
-                             "object": gobj_cmd})
+                rgba = list(gobj.meshColor)[:3] + [self.ghost_opacity]
+                if self.ghost_color is not None:
+                    given = [float(c) for c in self.ghost_color]
+                    rgba = given[:3] + [given[3] if len(given) > 3 else self.ghost_opacity]
+                cmds.append(convert.command(gobj, GHOST, self.names[i], rgba, from_file=False))
         if self.ghost and np.any(self.ghost_offset):
             cmds.append({"type": "set_transform", "path": f"{ROOT}/{GHOST}",
                          "matrix": _colmajor(_translation(self.ghost_offset))})
@@ -451,7 +347,7 @@ def record_html(robot, frames: Mapping[str, np.ndarray], dt: float, path: Path,
                 title: str = "", ghost_frames: Mapping[str, np.ndarray] | None = None, *,
                 ghost_color=None, ghost_opacity: float = DEFAULT_GHOST_OPACITY,
                 ghost_offset=(0.0, 0.0, 0.0), max_fps: float = 60.0,
-                mesh_materials: bool = False) -> Path:
+                mesh_materials: bool = True) -> Path:
     """Write one self-contained HTML file that plays the robot's motion in meshcat.
 
     The page needs no server and no network: it opens from ``file://`` (see the module docstring
@@ -470,9 +366,10 @@ def record_html(robot, frames: Mapping[str, np.ndarray], dt: float, path: Path,
         ghost_opacity: Opacity of the ghost when ``ghost_color`` has no alpha.
         ghost_offset: Shift of the ghost in [m] (default: none, it overlaps the system robot).
         max_fps: Frames are subsampled to at most this rate to keep the file small.
-        mesh_materials: Draw Collada meshes of the system robot from their files, with the
-            files' own materials and textures, instead of Pinocchio's triangles in
-            ``meshColor`` (bigger file).
+        mesh_materials: Draw the system robot's meshes from their files, as Pinocchio's
+            MeshcatVisualizer does (a Collada file in its own materials and textures unless
+            the URDF gives a colour; default); False: from the triangles Pinocchio loaded,
+            in the URDF's colour or Pinocchio's grey (a smaller file).
 
     Returns:
         The path written.
@@ -734,7 +631,7 @@ class LiveViewer:
     def __init__(self, robot, *, zmq_url: str | None = None, ghost: bool = True,
                  ghost_color=None, ghost_opacity: float = DEFAULT_GHOST_OPACITY,
                  ghost_offset=(0.0, 0.0, 0.0), max_fps: float = 30.0,
-                 mesh_materials: bool = False, open_browser: bool = False,
+                 mesh_materials: bool = True, open_browser: bool = False,
                  timeout: float = 20.0, quiet: bool = False):
         import zmq
 

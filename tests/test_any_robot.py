@@ -9,7 +9,8 @@ import pytest
 
 from feltool.control import FrameAngle
 from feltool.experiment import load_experiment, reduce_robot, run_seed
-from feltool.robot import config_skeleton, load_robot
+from feltool.inspection import config_skeleton
+from feltool.robot import load_robot
 
 from .conftest import CONFIGS, feltool
 

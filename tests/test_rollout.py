@@ -433,3 +433,54 @@ def test_example_robot_data_mesh_robot_with_locked_joints(tmp_path):
         q = np.linspace([-1.2, 0.5], [-1.0, 0.8], 10)
         stream.play(q, q + 0.1)
         assert stream.frames_drawn >= 3
+
+
+# ------------------------------------------------------------------------------------------------
+# robots with mesh files: drawn from their meshes in the browser
+# ------------------------------------------------------------------------------------------------
+
+_MESHES_JS = """() => {
+  const out = [];
+  viewer.scene.traverse(o => {
+    if (!o.isMesh) return;
+    const path = [];
+    for (let p = o; p; p = p.parent) if (p.name) path.unshift(p.name);
+    const pos = o.geometry.attributes.position;
+    out.push([path.join("/"), o.geometry.type, pos ? pos.count : 0]);
+  });
+  return out;
+}"""
+
+
+@needs_chromium
+@pytest.mark.parametrize("config", ["ur5_wrist_level", "panda_hand_level"])
+def test_panda_and_ur5_appear_with_their_meshes(browser, config, tmp_path):
+    """rollout.html of a real run, opened in Chromium: every visual of the robot is a mesh
+    loaded from its Collada file (three.js's loader finds the triangles Pinocchio's loader
+    found, to 0.1 %), the ghost Pinocchio's own triangles, and no box or cylinder stands in
+    for a link."""
+    from feltool.experiment import load_experiment
+
+    out = tmp_path / "run"
+    res = feltool("run", config, "--seeds", "0", "--cycles", "1", "--html", "--out", str(out),
+                  "--no-progress")
+    assert res.returncode == 0, res.stderr
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        visuals = load_experiment(ROOT / "configs" / f"{config}.yaml").robot.visual_model
+    page = browser.new_page(viewport={"width": 800, "height": 600})
+    page.goto((out / "rollout.html").resolve().as_uri())
+    page.wait_for_selector('body[data-feltool-status="ready"]', timeout=120_000)
+    assert page.inner_text("#feltool-errors").strip() == ""
+    meshes = {path.split("/meshcat/feltool/", 1)[1]: (kind, count)
+              for path, kind, count in page.evaluate(_MESHES_JS) if "/meshcat/feltool/" in path}
+    page.close()
+    assert len(meshes) == 2 * len(visuals.geometryObjects), sorted(meshes)
+    for geom in visuals.geometryObjects:
+        assert geom.meshPath.endswith(".dae"), geom.meshPath
+        kind, count = meshes[f"system/{geom.name}"]
+        assert kind == "BufferGeometry"
+        assert count == pytest.approx(3 * geom.geometry.num_tris, rel=1e-3), geom.name
+        assert meshes[f"ghost/{geom.name}"] == ("BufferGeometry", geom.geometry.num_vertices)
+    assert not {kind for kind, _ in meshes.values()} & {"BoxGeometry", "CylinderGeometry",
+                                                        "SphereGeometry"}

@@ -170,8 +170,20 @@ def test_record_html_mesh_robot(tmp_path):
         path = record_html(ur5, {"still": q}, 0.1, tmp_path / "ur5.html", ghost_frames={"still": q})
     cmds = _commands(path.read_text())
     objects = [c for c in cmds if c["type"] == "set_object"]
-    assert len(objects) == 2 * len(ur5.visual_model.geometryObjects)
-    assert all(o["object"]["geometries"][0]["type"] == "BufferGeometry" for o in objects)
+    geoms = ur5.visual_model.geometryObjects
+    assert len(objects) == 2 * len(geoms)
+    # the system robot: each Collada file itself (Pinocchio's MeshcatVisualizer: its own
+    # materials, since the URDF gives none); the ghost: Pinocchio's triangles, translucent
+    system = [o for o in objects if "/system/" in o["path"]]
+    ghost = [o for o in objects if "/ghost/" in o["path"]]
+    assert len(system) == len(ghost) == len(geoms)
+    for obj, geom in zip(system, geoms):
+        inner = obj["object"]["object"]
+        assert inner["type"] == "_meshfile_object" and inner["format"] == "dae"
+        assert inner["data"] == Path(geom.meshPath).read_text(), geom.name
+    for obj in ghost:
+        assert obj["object"]["geometries"][0]["type"] == "BufferGeometry"
+        assert obj["object"]["materials"][0]["opacity"] < 0.5
 
 
 # ------------------------------------------------------------------------------------------------
