@@ -19,6 +19,8 @@ from feltool.gait_config import gait_config, gait_spec, walker_from_raw
 from feltool.gait_design import design_gait
 from feltool.gait_orbit import GaitNotWalking, close_on_orbit, verify_design
 
+from .conftest import other_walker_urdf
+
 COMPASS = Path("configs/gaits/compass_gait.yaml")
 
 
@@ -187,16 +189,7 @@ def test_a_walker_never_seen_gets_a_walking_gait_from_its_config_alone(tmp_path,
 
     from feltool.cli import main
 
-    text = Path("robots/five_link_walker.urdf").read_text()
-    for old, new in (('name="five_link_walker"', 'name="other_walker"'),
-                     ('<mass value="12.0"/>', '<mass value="18.0"/>'),
-                     ('<mass value="6.8"/>', '<mass value="5.0"/>'),
-                     ('<mass value="3.2"/>', '<mass value="2.5"/>'),
-                     ('xyz="0 0 -0.4"', 'xyz="0 0 -0.45"'),
-                     ('type="revolute"', 'type="continuous"')):
-        assert old in text
-        text = text.replace(old, new)
-    (tmp_path / "other_walker.urdf").write_text(text)
+    (tmp_path / "other_walker.urdf").write_text(other_walker_urdf())
     foot = {"offset": [0, 0, -0.45]}
     raw = {"name": "other_walker", "robot": "other_walker.urdf", "gravity": 9.81,
            "period_s": 1.2, "sim": {"rate_hz": 200},
