@@ -105,8 +105,8 @@ def main() -> None:
             dmp = pydmps_fit(N, y)
             roll = median_time(lambda d=dmp: d.rollout(), r)
 
-            def steps(p=prim, th=theta, x0=np.array([y[0], 0.0])):
-                x = x0
+            def steps(p=prim, th=theta, q0=y[0]):
+                x = np.array([q0, 0.0])
                 for k in range(N_SAMPLES):
                     x = p.step(x, th, k)
 
