@@ -216,10 +216,11 @@ def _input_signal(exp: Experiment):
     return lambda q, t: e.mean + sum(a * np.sin(k * w * t + p) for k, a, p in terms)
 
 
-def motion_problems(cfg: ExperimentConfig, joints: list[str], exp_robot_model,
+def motion_problems(cfg: ExperimentConfig, joints: list[str], model: pin.Model,
                     fixed: set[str]) -> list[tuple[str, str]]:
     """What the phase and the motion events of ``cfg`` need from the experiment: joints with an
-    RMP, a frame that exists, and an engine that runs them (``(yaml path, message)`` pairs)."""
+    RMP, a clock for period events, a joint or frame that exists for the oscillator's input
+    (``(yaml path, message)`` pairs)."""
     problems = []
     for i, ev in cfg.motion_events:
         for key in ("amplitude", "goal"):
@@ -238,7 +239,7 @@ def motion_problems(cfg: ExperimentConfig, joints: list[str], exp_robot_model,
         if osc.input.joint is not None and osc.input.joint not in joints:
             problems.append(("primitives.oscillator.input.joint", f"'{osc.input.joint}' is not "
                              f"a configured (unlocked) joint; joints: {', '.join(joints)}"))
-        if osc.input.frame is not None and not exp_robot_model.existFrame(osc.input.frame):
+        if osc.input.frame is not None and not model.existFrame(osc.input.frame):
             problems.append(("primitives.oscillator.input.frame", f"the robot has no frame "
                              f"'{osc.input.frame}'"))
     return problems

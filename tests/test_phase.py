@@ -428,7 +428,9 @@ def test_mechanical_phase_needs_a_physical_walker():
     ["period_s=1.005", "events=[{cycle: 4, period_s: 0.87, transition_cycles: 3}, "
                        "{cycle: 5, amplitude: {elbow: 1.2}}]"],
     ["primitives.phase=adaptive", "primitives.oscillator={input: {joint: shoulder}}"],
-], ids=["clock-events", "adaptive"])
+    ["learning.step=per_step", "learning.rates.weights=0.002", "period_s=1.005",
+     "events=[{cycle: 4, period_s: 0.87, transition_cycles: 3}, {cycle: 5, goal: {shoulder: 1.5}}]"],
+], ids=["clock-events", "adaptive", "per-step-events"])
 def test_a_resumed_seed_continues_its_phase_bit_identically(overrides, tmp_path):
     """Stopped after cycle 5 (a checkpoint) and continued to cycle 9, a seed gives the same
     metrics, bit for bit, as one run of 9 cycles: the clock (mid-change), the amplitude, the
