@@ -327,7 +327,8 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
             else:
                 goal = float(np.mean(q)) if d.kind == "samples" else d.mean
                 thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=goal)
-            fit_rms[name] = prim.fit_rms(thetas[i], q, 2.0 * np.pi * fine_t / T)
+            if not jc.follow_demo:
+                fit_rms[name] = prim.fit_rms(thetas[i], q, 2.0 * np.pi * fine_t / T)
             if jc.follow_demo and jc.learn is None:
                 fixed[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt, series)
             elif jc.follow_demo:
@@ -424,7 +425,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None) -> Experim
     _check_phase(cfg, joints, robot, {joints[i] for i in (*fixed, *referenced)}, src)
     plant = dynamics
     if cfg.plant is not None:
-        if cfg.events:
+        if any(ev.changes_world for ev in cfg.events):
             raise ConfigError([("events", "events change the known model's world; combining "
                                           "them with a plant block is not supported yet")], src)
         plant_rb = reduce_robot(plant_robot(cfg.plant, full_robot,
