@@ -246,8 +246,7 @@ def test_amplitude_and_goal_events_start_a_transient_not_a_jump():
 def test_motion_events_name_their_yaml_paths():
     # a motion event leaves the plant alone, so it may go with a plant block (a world event
     # may not: the plant's world is its own)
-    exp = load_experiment(CONFIGS / "two_link_standard_mismatch.yaml",
-                          ["events=[{cycle: 3, goal: {shoulder: 1.5}}]"])
+    exp = load_experiment(STANDARD, ["plant={}", "events=[{cycle: 3, goal: {shoulder: 1.5}}]"])
     assert exp.plant is not exp.dynamics
     with pytest.raises(ConfigError, match="events.0.goal.knee: 'knee' is not a configured"):
         load_experiment(STANDARD, ["events=[{cycle: 3, goal: {knee: 1.0}}]"])
