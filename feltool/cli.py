@@ -81,6 +81,7 @@ def _progress(args: argparse.Namespace) -> tuple[bool, object]:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from feltool.runner import default_out_dir, run_experiment, stored_experiment
+    from feltool.timing import process_started
 
     bar, lines = _progress(args)
     resume = args.resume is not None
@@ -122,7 +123,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         try:
             summary = run_experiment(exp, raw, out_dir, seeds, cycles, workers=args.workers,
                                      show_progress=bar, on_cycle=stream, resume=resume,
-                                     progress_lines=lines)
+                                     progress_lines=lines, started=process_started())
         except Interrupted as exc:
             raise Interrupted(f"{exc}; continue with: feltool run --resume {out_dir}") from None
         finally:
@@ -259,6 +260,23 @@ def print_summary(summary: dict, out_dir: Path) -> None:
     learned = agg["n_seeds"] - agg.get("n_failed", agg["n_diverged"])
     print(f"  learned as the config asks: {learned}/{agg['n_seeds']}   diverged: "
           f"{agg['n_diverged']}   run directory: {out_dir}")
+    _print_timing(summary)
+
+
+def _print_timing(summary: dict) -> None:
+    """The run's honest figures (summary.json's ``timing``): the learning loop alone, the
+    compilation, and the whole run since the process started (figures included)."""
+    t = summary.get("timing")
+    if not t:
+        return
+    from feltool.timing import process_started
+
+    sps = t["steps_per_s"]
+    rate = "-" if sps is None else (f"{sps / 1e6:.3g} M" if sps >= 1e6 else f"{sps / 1e3:.3g} k")
+    print(f"  timing: learning loop {rate} steps/s per core ({t['steps']:,} steps in "
+          f"{t['loop_s']:.3g} s, {summary.get('engine', '?')} engine); build/compile "
+          f"{t['compile_s']:.3g} s; whole run {time.time() - process_started():.3g} s wall "
+          "since the process started")
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

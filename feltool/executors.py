@@ -49,6 +49,16 @@ class Task:
     checkpoint_every: int = 10
 
 
+def _ident(raw: dict, source) -> str:
+    return json.dumps(raw, sort_keys=True, default=str) + str(source)
+
+
+def remember(exp, raw: dict) -> None:
+    """Keep a built experiment for the tasks of its config, so that this process and the
+    workers forked from it reuse it (and its loaded compiled cycle) instead of rebuilding."""
+    _CACHE[_ident(raw, str(exp.source) if exp.source else None)] = exp
+
+
 def run_task(task: Task, on_cycle: Callable | None = None, put: Callable | None = None):
     """Run one task in this process (a pool or Dask worker, or the main process).
 
@@ -56,7 +66,7 @@ def run_task(task: Task, on_cycle: Callable | None = None, put: Callable | None 
     items ``(key, seed, cycle, fb)`` (default: the worker's progress queue, if any)."""
     from feltool.experiment import build_experiment, run_seed
 
-    ident = json.dumps(task.raw, sort_keys=True, default=str) + str(task.source)
+    ident = _ident(task.raw, task.source)
     exp = _CACHE.get(ident)
     if exp is None:
         exp = _CACHE[ident] = build_experiment(task.raw, Path(task.source) if task.source else None)

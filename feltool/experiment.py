@@ -104,6 +104,12 @@ class Experiment:
     def error_joints(self) -> list[str]:
         return [n for n, m in zip(self.joints, self.learner.error_mask) if m > 0]
 
+    @property
+    def engine(self) -> str:
+        """The engine that runs this experiment's learning cycles: ``compiled`` (the cycle as
+        generated C, :mod:`feltool.compiled`) or ``python`` (Pinocchio calls per step)."""
+        return "compiled" if self.config.backend == "compiled" else "python"
+
     def compiled_cycle(self):
         """The compiled learning cycle (built and compiled on first use, cached on disk)."""
         if getattr(self, "_compiled", None) is None:

@@ -15,6 +15,7 @@ import os
 import queue
 import signal
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
@@ -44,7 +45,8 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
                    show_progress: bool = True, figures: bool = True,
                    scheduler: str | None = None,
                    on_cycle: Callable | None = None, resume: bool = False,
-                   progress_lines: TextIO | None = None) -> dict[str, Any]:
+                   progress_lines: TextIO | None = None,
+                   started: float | None = None) -> dict[str, Any]:
     """Run every seed (in parallel on all cores, or on a Dask cluster), write the run
     directory, return the summary.
 
@@ -67,11 +69,14 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
         resume: Continue ``out_dir`` (an :class:`InputError` if its inputs differ).
         progress_lines: Without a progress bar, print a progress line per seed every few cycles
             to this stream (e.g. ``sys.stderr`` when it is not a terminal).
+        started: When the run started, in [s] since the epoch (the CLI: its process's start);
+            default now. summary.json's ``timing.wall_s`` counts from it.
 
     Raises:
         InputError: ``out_dir`` holds something and ``resume`` is false; the stored run differs
             from the one asked for; another process is writing ``out_dir``.
     """
+    started = time.time() if started is None else started
     cfg = exp.config
     out_dir = Path(out_dir)
     seeds = list(seeds if seeds is not None else cfg.seed_list)
@@ -94,8 +99,10 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
                 "cycles": cycles, "config_fingerprint": _fingerprint(exp)})
         set_state(out_dir, "running", cycles=cycles)
         try:
+            compile_s = prepare_engine(exp, raw)
             summary = _run_seeds(exp, raw, out_dir, seeds, cycles, workers, show_progress,
-                                 scheduler, on_cycle, progress_lines)
+                                 scheduler, on_cycle, progress_lines,
+                                 {"started": started, "compile_s": compile_s})
         except Interrupted:
             set_state(out_dir, "interrupted")
             raise
@@ -110,8 +117,22 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
     return summary
 
 
+def prepare_engine(exp: Experiment, raw: dict) -> float:
+    """Build the experiment's cycle engine in this process before any seed runs (the compiled
+    engine: generate and compile its C code, or load it from the cache), so that worker
+    processes forked from here share it; returns the time it took in [s]."""
+    from feltool.executors import remember
+
+    t0 = time.perf_counter()
+    if exp.engine == "compiled":
+        exp.compiled_cycle()
+    remember(exp, raw)
+    return time.perf_counter() - t0
+
+
 def _run_seeds(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int], cycles: int,
-               workers, show_progress, scheduler, on_cycle, progress_lines) -> dict[str, Any]:
+               workers, show_progress, scheduler, on_cycle, progress_lines,
+               timing: dict | None = None) -> dict[str, Any]:
     finished = {s: r for s in seeds if (r := load_seed_result(out_dir, s)) is not None
                 and not _needs_more_cycles(r, cycles)}
     tasks = [Task("run", raw, str(exp.source) if exp.source else None, s, cycles,
@@ -124,7 +145,7 @@ def _run_seeds(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int], cycl
         save_seed_result(exp, out_dir, result)
         results[task.seed] = result
     remove_empty(out_dir / "checkpoints")
-    return write_results(exp, out_dir, [results[s] for s in seeds])
+    return write_results(exp, out_dir, [results[s] for s in seeds], timing)
 
 
 def _needs_more_cycles(result: SeedResult, cycles: int) -> bool:
@@ -368,8 +389,11 @@ def load_seed_result(out_dir: Path, seed: int) -> SeedResult | None:
                       load_npz(out_dir / "params" / f"seed-{seed}.npz"), traces)
 
 
-def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult]) -> dict[str, Any]:
-    """Write metrics.csv and summary.json from finished seeds (in the given order)."""
+def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult],
+                  timing: dict | None = None) -> dict[str, Any]:
+    """Write metrics.csv and summary.json from finished seeds (in the given order);
+    ``timing``: ``{"started": epoch [s], "compile_s": [s]}`` of the run (see
+    :func:`run_timing`)."""
     write_metrics(out_dir / "metrics.csv", [row for r in results for row in r.rows])
     seeds = []
     for r in results:
@@ -384,9 +408,25 @@ def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult]) -> 
                "robot": exp.config.robot_source, "joints": exp.joints,
                "learned_joints": exp.learned_joints, "error_joints": exp.error_joints,
                "demo_fit_rms_rad": exp.demo_fit_rms,
-               "seeds": seeds, "aggregate": aggregate(seeds)}
+               "engine": exp.engine, "seeds": seeds, "aggregate": aggregate(seeds)}
+    if timing is not None:
+        summary["timing"] = run_timing(seeds, timing["started"], timing["compile_s"])
     write_json(out_dir / "summary.json", summary)
     return summary
+
+
+def run_timing(seeds: list[dict[str, Any]], started: float, compile_s: float) -> dict[str, Any]:
+    """The run's honest figures: ``steps_per_s`` of the learning loop alone (every seed's
+    control steps over the time spent inside its cycles, per core: process start, imports,
+    building, compiling and the observers of each cycle excluded), ``compile_s`` (building the
+    cycle engine before the seeds: for the compiled engine, generating and compiling its C code
+    or loading it from the cache) and ``wall_s``, the whole run from ``started`` (the process's
+    start, for the CLI) to writing summary.json, in [s]."""
+    loop = sum(s.get("loop_s") or 0.0 for s in seeds)
+    steps = sum(s.get("steps") or 0 for s in seeds)
+    return {"steps_per_s": round(steps / loop, 1) if loop > 0 else None, "steps": steps,
+            "loop_s": round(loop, 6), "compile_s": round(compile_s, 4),
+            "wall_s": round(time.time() - started, 4)}
 
 
 def success_failure(exp: Experiment, entry: dict[str, Any]) -> str | None:

@@ -122,8 +122,10 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
                     break
                 q, v = log.q_end, log.v_end
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
-    reason, start, wall_before = None, 1, 0.0
-    run_cycle = _cycle_runner(exp, theta, seed)
+    reason, start, wall_before, loop_before = None, 1, 0.0, 0.0
+    t_build = time.perf_counter()
+    run_cycle = _cycle_runner(exp, theta, seed)  # the compiled engine compiles (or loads) here
+    compile_s = time.perf_counter() - t_build
     motion: Motion | None = getattr(run_cycle, "motion", None)
     switches = {ev.cycle for _, ev in cfg.motion_events}
     model = exp.model_learner
@@ -134,6 +136,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         start = saved["cycle"] + 1
         theta, q, v = saved["theta"], saved["q"], saved["v"]
         rows, wall_before = saved["rows"], saved["wall_s"]
+        loop_before = saved.get("loop_s", wall_before)
         history = list(saved["history"])
         traces = {k[len("trace_"):]: val for k, val in saved.items() if k.startswith("trace_")}
         if "rmp_x" in saved:
@@ -146,6 +149,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
     hits = [np.zeros(len(exp.joints), int), np.zeros(len(exp.joints), int)]
     checked, contacts, out, cycle, steps = False, [], None, start - 1, 0
+    loop = 0.0  # [s] inside the learning cycles only (what steps/s counts)
     if saved is not None:  # counters of the cycles before the checkpoint
         steps = int(saved.get("steps", n * len(rows)))
         impacts.update(saved.get("impacts", {}))
@@ -158,13 +162,16 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         _save_checkpoint(checkpoint, at_cycle, theta, q, v, rows, history, traces, wall,
                          run_cycle, (theta_m, model_history) if model is not None else None,
                          {"impacts": impacts, "contacts": contacts, "steps": steps,
+                          "loop_s": loop_before + loop,
                           "limit_hits": [h.tolist() for h in hits] if checked else None})
     for cycle in range(start, cycles + 1):
         if cycle > start:
             plant = _plant_for_cycle(exp, cycle) or plant
+        t_cycle = time.perf_counter()
         if motion is not None:
             theta = motion.apply_events(cycle, theta)
         before, out = out, run_cycle(theta, q, v, plant, theta_m)
+        loop += time.perf_counter() - t_cycle
         steps += out.cycle.n if out.cycle is not None else n
         for _, by_guard, _ in out.impacts:
             impacts["guard" if by_guard else "clock"] += 1
@@ -207,7 +214,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             save(rows[-1]["cycle"], wall)
         elif reason is not None:
             checkpoint.clear()
-    summary = _seed_summary(exp, seed, rows, reason, wall, steps)
+    summary = _seed_summary(exp, seed, rows, reason, wall, steps, loop_before + loop, compile_s)
     summary["cycles_planned"] = cycles
     if cfg.walking is not None and cfg.walking.physical:
         failed = out.contact if reason and out is not None else None
@@ -724,8 +731,12 @@ def _switch_trace(cycle: int, before: CycleOutcome, after: CycleOutcome,
     return {f"switch{cycle}_t": t, f"switch{cycle}_q_forward": Q, f"switch{cycle}_v_forward": V}
 
 
-def _seed_summary(exp: Experiment, seed: int, rows, reason: str | None,
-                  wall: float, steps: int) -> dict[str, Any]:
+def _seed_summary(exp: Experiment, seed: int, rows, reason: str | None, wall: float,
+                  steps: int, loop: float, compile_s: float) -> dict[str, Any]:
+    """The seed's entry of summary.json. ``wall_s``: the seed's whole time [s] (its cycles and
+    what observes them: metrics, traces, checkpoints, progress); ``loop_s``: inside the learning
+    cycles only, which ``steps_per_s`` counts; ``compile_s``: building (the compiled engine:
+    generating and compiling, or loading) the cycle engine before the first cycle."""
     fb = [r["fb_abs_mean_error"] for r in rows]
     fb0 = fb[0] if fb else None
     converged = None
@@ -737,7 +748,8 @@ def _seed_summary(exp: Experiment, seed: int, rows, reason: str | None,
             converged = rows[last_above + 1]["cycle"]
     out = {"seed": seed, "cycles": len(rows), "fb_initial": fb0, "fb_final": fb[-1] if fb else None,
            "fb_ratio": (fb[-1] / fb0) if fb and fb0 else None, "converged_cycle": converged,
-           "wall_s": round(wall, 4), "steps_per_s": round(steps / wall, 1) if wall > 0 else None,
+           "wall_s": round(wall, 4), "loop_s": round(loop, 6), "compile_s": round(compile_s, 4),
+           "steps": steps, "steps_per_s": round(steps / loop, 1) if loop > 0 else None,
            "diverged": reason is not None}
     if reason:
         out["diverged_reason"] = f"seed {seed}, cycle {len(rows) + 1}: {reason}"

@@ -51,6 +51,26 @@ def test_run_writes_the_run_directory(short_run):
     assert params["elbow.weights_history"].shape == (26, 10)
 
 
+def test_summary_reports_the_learning_loop_compile_and_wall_apart(short_run):
+    """steps/s counts the learning cycles only: each seed's control steps over its time inside
+    the cycles (not its wall time, which includes metrics, checkpoints and progress); the run
+    adds them up and reports the compile time and the whole wall time beside them."""
+    out, res = short_run
+    summary = json.loads((out / "summary.json").read_text())
+    for s in summary["seeds"]:
+        assert s["steps"] == 25 * 100
+        assert 0 < s["loop_s"] <= s["wall_s"]
+        assert s["steps_per_s"] == pytest.approx(s["steps"] / s["loop_s"], rel=1e-3)
+    t = summary["timing"]
+    assert t["steps"] == 4 * 25 * 100
+    assert t["loop_s"] == pytest.approx(sum(s["loop_s"] for s in summary["seeds"]), rel=1e-4)
+    assert t["steps_per_s"] == pytest.approx(t["steps"] / t["loop_s"], rel=1e-3)
+    assert t["compile_s"] >= 0
+    # the process started before the experiment was built and the seeds ran
+    assert t["wall_s"] > max(s["wall_s"] for s in summary["seeds"]) + t["compile_s"]
+    assert "timing: learning loop" in res.stdout and "since the process started" in res.stdout
+
+
 def test_resolved_config_repeats_the_run_exactly(short_run, tmp_path):
     out, _ = short_run
     again = tmp_path / "again"
