@@ -22,6 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from feltool.cycle import feedback
+from feltool.ops import NUMPY
+
 
 class FrameAngle:
     r"""The orientation of a link frame about a world axis, as a stabilized quantity.
@@ -108,21 +111,8 @@ class FeedbackLaw:
         output (for a frame angle: its torque about the axis), and the joint torques of the
         controllers in ``error_rows`` (the learning signal). A linear controller acts on its own
         joint; a frame angle's torque acts through :math:`j_y^\\top`."""
-        u_rows = self.kp * (r - self.C @ q) + self.kd * (rd - self.C @ v)
-        jacs = {}
-        for row, frame in self.frames.items():
-            y, jac = frame.value_and_jacobian(q)
-            jacs[row] = jac
-            u_rows[row] = self.kp[row] * wrap(r[row] - y) + self.kd[row] * (rd[row] - jac @ v)
-        u_fb = u_rows.copy()
-        u_err = np.where(error_rows > 0, u_rows, 0.0)
-        for row, jac in jacs.items():
-            u_fb[row] -= u_rows[row]
-            u_fb += jac * u_rows[row]
-            if error_rows[row] > 0:
-                u_err[row] -= u_rows[row]
-                u_err += jac * u_rows[row]
-        return u_fb, u_rows, u_err
+        return feedback(NUMPY, self, q, v, r, rd, error_rows,
+                        {row: f.value_and_jacobian for row, f in self.frames.items()})
 
     def references(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """References :math:`r, \\dot r`, each ``(n, nv)``, for desired trajectories ``(n, nv)``."""

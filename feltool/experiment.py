@@ -111,11 +111,12 @@ class Experiment:
         return "compiled" if self.config.backend == "compiled" else "python"
 
     def compiled_cycle(self):
-        """The compiled learning cycle (built and compiled on first use, cached on disk)."""
+        """The compiled engine of this experiment (its cycles built and compiled on first
+        use, cached on disk; :class:`feltool.compiled_engine.CompiledEngine`)."""
         if getattr(self, "_compiled", None) is None:
-            from feltool.compiled import CompiledCycle
+            from feltool.compiled_engine import CompiledEngine
 
-            self._compiled = CompiledCycle(self)
+            self._compiled = CompiledEngine(self)
         return self._compiled
 
     def initial_parameters(self, seed: int) -> np.ndarray:
@@ -346,12 +347,10 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
         else:
             thetas[i] = np.zeros(prim.n_params)
     primitives = PrimitiveSet(prims, nv, fixed, referenced)
-    if fixed and (cfg.backend == "compiled" or cfg.learning.sensitivity == "casadi"
-                  or cfg.learning.step == "per_step"):
-        raise ConfigError([(f"joints.{joints[i]}.follow_demo", "needs backend pinocchio or "
-                            "casadi, learning.sensitivity exact or finite_difference and "
-                            "learning.step per_cycle") for i in fixed],
-                          str(source) if source else None)
+    if fixed and (cfg.learning.sensitivity == "casadi" or cfg.learning.step == "per_step"):
+        raise ConfigError([(f"joints.{joints[i]}.follow_demo", "needs learning.sensitivity "
+                            "exact or finite_difference and learning.step per_cycle")
+                           for i in fixed], str(source) if source else None)
     theta_demo = np.concatenate([thetas[i] for i in range(nv)])
 
     # Feedback laws.
@@ -468,9 +467,6 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
         if L.sensitivity != "exact":
             raise ConfigError([("learning.sensitivity", "walking/actuation support only "
                                                         "'exact'")], src)
-        if cfg.backend == "compiled":
-            raise ConfigError([("backend", "walking/actuation need the pinocchio or casadi "
-                                           "backend (the compiled cycle has no hybrid loop)")], src)
         if model_learner is not None:
             raise ConfigError([("learning.model", "model learning is not supported for "
                                                   "walking/actuated robots yet")], src)
@@ -499,16 +495,6 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
     if cfg.backend == "compiled":
         from feltool.compiled import check_supported
 
-        if cfg.events:
-            raise ConfigError([("events", "backend 'compiled' simulates the known model only; "
-                                          "use pinocchio or casadi for events")], src)
-        # The compiled cycle simulates the known model and has no model correction.
-        problems = [(f, f"backend 'compiled' does not support '{f}' yet; use backend "
-                        f"pinocchio or casadi") for f, val in (("plant", cfg.plant),
-                                                              ("learning.model", L.model))
-                    if val is not None]
-        if problems:
-            raise ConfigError(problems, str(source) if source else None)
         check_supported(exp)
     return exp
 
@@ -679,8 +665,7 @@ def _check_phase(cfg: ExperimentConfig, joints: list[str], robot: Robot, fixed: 
     if cfg.primitives.phase == "adaptive" and L.step == "per_step":
         raise ConfigError([("primitives.phase", "adaptive runs with learning.step per_cycle "
                                                 "(the per-step engine has no oscillator)")], src)
-    for engine, used in (("backend 'compiled'", cfg.backend == "compiled"),
-                         ("the walking/actuated loop", cfg.walking is not None
+    for engine, used in (("the walking/actuated loop", cfg.walking is not None
                           or cfg.actuation is not None),
                          (f"learning.update {L.update}", L.update in OWN_RUNNER),
                          ("a disturbances block", cfg.disturbances is not None),

@@ -27,7 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from feltool.cycle import fel_sums, fel_update
 from feltool.dynamics import Dynamics
+from feltool.ops import NUMPY
 from feltool.phase import PhaseSamples
 from feltool.rmp import PrimitiveSet
 
@@ -71,6 +73,8 @@ class FeedbackErrorLearner:
             sl = self.primitives.slices[i]
             cols = [pos[p] for p in range(sl.start, sl.stop) if p in pos]
             if cols:
+                if len(cols) != sl.stop - sl.start:
+                    raise ValueError("a learned joint learns every parameter of its RMP")
                 self._blocks.append((i, np.array(cols), prim, np.arange(sl.start, sl.stop)))
 
     @property
@@ -158,18 +162,53 @@ class FeedbackErrorLearner:
 
     def apply(self, theta: np.ndarray, grad: np.ndarray, hess: np.ndarray | None) -> np.ndarray:
         """The update from :math:`g = \\sum_k J_k^\\top e_k` and (for gauss_newton)
-        :math:`H = \\sum_k J_k^\\top E J_k`, E selecting the error joints."""
+        :math:`H = \\sum_k J_k^\\top E J_k`, E selecting the error joints
+        (:func:`feltool.cycle.fel_update`)."""
         theta = theta.copy()
         if self.n_learned == 0:
             return theta
-        delta = self.rates * grad
-        if self.update == "gauss_newton":
-            w = ~self.is_goal
-            H = hess[np.ix_(w, w)]
-            lam = self.damping * float(np.mean(np.diag(H))) + 1e-300
-            delta[w] = self.rates[w] * np.linalg.solve(H + lam * np.eye(H.shape[0]), grad[w])
-        theta[self.learned] += delta
+        theta[self.learned] = fel_update(NUMPY, theta[self.learned], grad, hess, self.rates,
+                                         self.is_goal, self.update, self.damping)
         return theta
+
+    def learned_sensitivities(self, cycle: PhaseSamples | None = None,
+                              samples: np.ndarray | None = None) -> list[tuple]:
+        """Per learned joint (in the order of :attr:`learned`) the rows ``(Xq, Xv, Xa)``, each
+        ``(n, P_l)``, of its desired position, velocity and acceleration by its parameters at
+        the steps of ``cycle`` (``samples``: the RMP sample of each row)."""
+        sens = self.primitives.sensitivities(cycle)
+        out = []
+        for i, _, _, _ in self._blocks:
+            X = sens[i]
+            out.append(tuple(x[samples] for x in X) if samples is not None else X)
+        return out
+
+    def sums(self, derivatives: tuple, E: np.ndarray, weight: np.ndarray | None = None,
+             cycle: PhaseSamples | None = None, samples: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+        """:math:`g = \\sum_k J_k^\\top e_k` and, for gauss_newton, :math:`H` of one cycle from
+        the inverse model's derivatives ``(Dq, Dv, M)`` ``(n, nv, nv)`` along it and the error
+        torques ``E`` ``(n, nv)``, without forming J (:func:`feltool.cycle.fel_sums`);
+        ``weight``, ``cycle``, ``samples`` as in :meth:`step` and :meth:`jacobian`."""
+        Dq, Dv, M = derivatives
+        deriv = [(Dq[:, :, i].T, Dv[:, :, i].T, M[:, :, i].T) for i, _, _, _ in self._blocks]
+        Ew = E if weight is None else E * weight[:, None]
+        rows = None
+        if self.update == "gauss_newton":
+            rows = (np.any(E != 0, axis=0) | (self.error_mask > 0)).astype(float)[:, None]
+            if weight is not None:
+                rows = rows * weight[None, :]
+        return fel_sums(NUMPY, self.learned_sensitivities(cycle, samples), deriv, Ew.T, rows)
+
+    def update_from_derivatives(self, theta: np.ndarray, derivatives: tuple, E: np.ndarray,
+                                weight: np.ndarray | None = None,
+                                cycle: PhaseSamples | None = None,
+                                samples: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`step` for exact sensitivities, from the inverse model's derivatives (see
+        :meth:`sums`)."""
+        if self.n_learned == 0:
+            return theta.copy()
+        return self.apply(theta, *self.sums(derivatives, E, weight, cycle, samples))
 
 
 def feedforward(dynamics: Dynamics, Qd: np.ndarray, Vd: np.ndarray, Ad: np.ndarray) -> np.ndarray:

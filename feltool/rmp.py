@@ -402,13 +402,14 @@ class PrimitiveSet:
         return self._cache[key]
 
     def desired(self, theta: np.ndarray, cycle: PhaseSamples | None = None,
-                transients: dict[int, tuple[np.ndarray, float]] | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                transients: dict[int, tuple[np.ndarray, float]] | None = None,
+                without: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:math:`q_d, \\dot q_d, \\ddot q_d` of every joint at the steps of ``cycle`` (default
         the nominal cycle), each ``(n, nv)``: the limit cycle of ``theta``, plus for the joints
         in ``transients`` (``{index: (y0, phi0)}``) the homogeneous solution
         :math:`e^{A(\\phi - \\phi_0)} y_0` started at the phase :math:`\\phi_0` [rad] (counted
-        from the run's start) by an amplitude or goal change."""
+        from the run's start) by an amplitude or goal change. The joints in ``without`` leave
+        out their limit cycle (the compiled engine adds it, :mod:`feltool.compiled_graph`)."""
         cycle = cycle or self.nominal
         n = cycle.n
         sens = self.sensitivities(cycle)
@@ -417,9 +418,10 @@ class PrimitiveSet:
             if i in self.fixed:
                 Q[:, i], V[:, i], A[:, i] = self.fixed[i]
                 continue
-            th = theta[self.slices[i]]
-            Xq, Xv, Xa = sens[i]
-            Q[:, i], V[:, i], A[:, i] = Xq @ th, Xv @ th, Xa @ th
+            if i not in without:
+                th = theta[self.slices[i]]
+                Xq, Xv, Xa = sens[i]
+                Q[:, i], V[:, i], A[:, i] = Xq @ th, Xv @ th, Xa @ th
             if i in self.offsets:  # a learned correction on top of a given motion
                 q, v, a = self.offsets[i]
                 Q[:, i] += q

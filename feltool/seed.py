@@ -23,7 +23,7 @@ from feltool.events import changed_model, plant_for_cycle
 from feltool.fel import feedforward
 from feltool.ilc import OWN_RUNNER
 from feltool.ilc import cycle_runner as ilc_cycle_runner
-from feltool.motion import Motion
+from feltool.motion import Motion, varying_phase
 from feltool.phase import PhaseSamples
 from feltool.simulate import ClosedLoop, CycleLog
 
@@ -259,9 +259,12 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
 
     A per-step runner carries the RMP states from cycle to cycle in its ``rmp_states``.
     """
-    if exp.config.backend == "compiled":
-        run = _compiled_runner(exp)
-        return lambda theta, q, v, plant, theta_m=None: run(theta, q, v)
+    if exp.engine == "compiled":
+        from feltool.compiled_engine import compiled_runner
+
+        cfg = exp.config
+        moving = bool(cfg.motion_events) or bool(varying_phase(cfg))
+        return compiled_runner(exp, Motion(exp) if moving else None)
     if exp.hybrid is not None:
         return lambda theta, q, v, plant, theta_m=None: _hybrid_cycle(exp, theta, q, v, plant)
     loops: dict[int, ClosedLoop] = {}
@@ -366,9 +369,13 @@ def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop,
     weight = cycle.weight if cycle is not None else None
     theta_next = theta
     if exp.learner.n_learned and np.all(np.isfinite(log.v)) and stalled is None:
-        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs, cycle=cycle,
-                                 transients=motion.transients if motion is not None else None)
-        theta_next = exp.learner.step(theta, J, log.u_err, weight)
+        if derivs is not None:  # exact: the sums of eq. 3.6 without forming J
+            theta_next = exp.learner.update_from_derivatives(theta, derivs, log.u_err, weight,
+                                                             cycle)
+        else:
+            J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs, cycle=cycle,
+                                     transients=motion.transients if motion is not None else None)
+            theta_next = exp.learner.step(theta, J, log.u_err, weight)
     out = _outcome(exp, log, Qd, theta_next, weight)
     out.cycle, out.desired, out.fall = cycle, (Qd, Vd, Ad), stalled
     if motion is not None:
@@ -592,50 +599,6 @@ def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next,
             float(mean(log.u_rows)[exp.law.stabilizing].sum()),
             float(mean(log.u_err).sum()),
             limit_hits=getattr(log, "limit_hits", None))
-
-
-def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
-    """Cycles from the compiled code, several per call: the outcomes of the cycles that follow
-    are kept and handed out while the loop continues from the very state they predicted (the
-    same arrays); a resumed or otherwise different state starts a new batch."""
-    compiled = exp.compiled_cycle()
-    nv, P = exp.robot.model.nv, exp.primitives.n_params
-    stab = np.flatnonzero(exp.law.stabilizing)
-    err_mask = exp.learner.error_mask
-    pending: list[tuple[tuple, CycleOutcome]] = []
-
-    def outcome(theta, x0, state, stat) -> CycleOutcome:
-        x_end = state[P:]
-        fb = stat[:nv]
-        max_speed = float(stat[2 * nv + 1])
-
-        def trace():
-            out = compiled.full(theta, x0)
-            X, U, Qd = out[7].T, out[8].T, out[9].T
-            return CycleLog(X[:, :nv], X[:, nv:], U, x_end[:nv], x_end[nv:], U,
-                            U * err_mask), Qd
-
-        return CycleOutcome(state[:P], x_end[:nv], x_end[nv:], fb, stat[nv:2 * nv],
-                            float(stat[2 * nv]), max_speed,
-                            bool(np.isfinite(state).all()) and max_speed == max_speed, trace,
-                            float(fb[stab].sum()), float(fb @ err_mask))
-
-    def run(theta, q, v) -> CycleOutcome:
-        if pending:
-            (t_exp, q_exp, v_exp), nxt = pending.pop(0)
-            if t_exp is theta and q_exp is q and v_exp is v:
-                return nxt
-        pending.clear()
-        x0 = np.concatenate([q, v])
-        states, stats = compiled.many(theta, x0)
-        outs, prev_theta, prev_x = [], theta, x0
-        for k in range(states.shape[1]):
-            outs.append(outcome(prev_theta, prev_x, states[:, k], stats[:, k]))
-            prev_theta, prev_x = outs[-1].theta_next, states[P:, k]
-        pending.extend(((a.theta_next, a.q_end, a.v_end), b) for a, b in zip(outs, outs[1:]))
-        return outs[0]
-
-    return run
 
 
 def _limit_cycle_states(exp: Experiment, theta: np.ndarray) -> dict[int, tuple]:

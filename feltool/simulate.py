@@ -19,7 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from feltool.control import FeedbackLaw
+from feltool.cycle import advance
 from feltool.dynamics import Dynamics
+from feltool.ops import NUMPY
 
 
 @dataclass
@@ -65,13 +67,6 @@ class Limits:
     joints: str = "report"
     torques: str = "report"
 
-    def clamp(self, q: np.ndarray, v: np.ndarray) -> None:
-        """Hold joints at their limits, in place (``joints: enforce``)."""
-        low, high = q < self.lower, q > self.upper
-        if low.any() or high.any():
-            np.clip(q, self.lower, self.upper, out=q)
-            v[(low & (v < 0)) | (high & (v > 0))] = 0.0
-
     def hits(self, Q: np.ndarray, Tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Steps per joint at or beyond a position limit, and beyond a torque limit."""
         joints = np.zeros(Q.shape[1], int)
@@ -114,23 +109,10 @@ class ClosedLoop:
 
     def advance(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """State after one control step under joint torques ``tau`` (already actuated)."""
-        h = self.dt / self.substeps
-        forward, integrate = self.dynamics.forward, self.dynamics.integrate
-        semi = self.integrator == "semi_implicit_euler"
-        lim = self.limits
-        if lim is not None and lim.torques == "saturate":
-            tau = np.clip(tau, -lim.effort, lim.effort)
-        for _ in range(self.substeps):
-            a = forward(q, v, tau)
-            if semi:
-                v = v + h * a
-                q = integrate(q, h * v)
-            else:
-                q, v = integrate(q, h * v), v + h * a
-            if lim is not None and lim.joints == "enforce":
-                q, v = q.copy(), v.copy()
-                lim.clamp(q, v)
-        return q, v
+        euclidean = getattr(self.dynamics, "euclidean", False)
+        return advance(NUMPY, self.dynamics.forward, q, v, tau, self.dt / self.substeps,
+                       self.substeps, self.integrator == "semi_implicit_euler", self.limits,
+                       None if euclidean else self.dynamics.integrate)
 
     def run_cycle(self, q: np.ndarray, v: np.ndarray, R: np.ndarray, Rd: np.ndarray,
                   u_ff: np.ndarray) -> CycleLog:
@@ -150,31 +132,14 @@ class ClosedLoop:
         F = S * (u_ff + B)
         SK = S[:, None] * K
         X = np.empty((n, 2 * nv))
-        x = np.concatenate([q, v])
-        qx, vx = x[:nv], x[nv:]  # views into x
         forward, h, substeps = self.dynamics.forward, self.dt / self.substeps, self.substeps
         semi = self.integrator == "semi_implicit_euler"
         lim = self.limits
-        saturate = lim is not None and lim.torques == "saturate"
-        enforce = lim is not None and lim.joints == "enforce"
         for k in range(n):
-            X[k] = x
-            tau = F[k] - SK @ x
-            if saturate:
-                tau = np.clip(tau, -lim.effort, lim.effort)
-            for _ in range(substeps):
-                a = forward(qx, vx, tau)
-                if semi:
-                    vx += h * a
-                    qx += h * vx
-                else:
-                    qx += h * vx
-                    vx += h * a
-                if enforce:
-                    lim.clamp(qx, vx)
+            X[k, :nv], X[k, nv:] = q, v
+            q, v = advance(NUMPY, forward, q, v, F[k] - SK @ X[k], h, substeps, semi, lim)
         U = B - X @ K.T
-        log = CycleLog(X[:, :nv], X[:, nv:], U, x[:nv].copy(), x[nv:].copy(), U,
-                       U * self.error_rows)
+        log = CycleLog(X[:, :nv], X[:, nv:], U, q, v, U, U * self.error_rows)
         if lim is not None:
             log.limit_hits = lim.hits(log.q, F - X @ SK.T)
         return log

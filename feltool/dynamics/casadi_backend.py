@@ -449,6 +449,18 @@ def symbolic_frame_kinematics(model: pin.Model, frame_id: int) -> ca.Function:
                        ["q", "v", "a"], ["p", "J", "dp", "ddp"])
 
 
+def symbolic_frame_rotation(model: pin.Model, frame_id: int) -> ca.Function:
+    """``q -> R``: the orientation of a frame in the world (3x3, Pinocchio's
+    ``data.oMf[frame_id].rotation``), symbolically."""
+    _check_has_joints(model)
+    joints = _describe_joints(model)
+    q = ca.SX.sym("q", model.nq)
+    frame = model.frames[frame_id]
+    R, _ = _placements_expr(model, joints, q)[frame.parentJoint]
+    R = ca.mtimes(R, _dm(np.array(frame.placement.rotation, dtype=float)))
+    return ca.Function("frame_rotation", [q], [ca.densify(R)], ["q"], ["R"])
+
+
 def symbolic_center_of_mass(model: pin.Model) -> ca.Function:
     """``(q, v) -> (c, dc)``: the centre of mass in the world [m] (``pin.centerOfMass``) and its
     velocity [m/s], symbolically."""
@@ -480,11 +492,13 @@ class BufferedCall:
     Calling a ``Function`` from Python with numpy arguments costs some 40 us of argument
     conversion, whatever the work inside; the buffer interface evaluates in place on numpy arrays
     that it was handed once (about 1 us for the two-link arm). Inputs are copied into the
-    pre-allocated arrays and every result is returned as a fresh copy. Not thread-safe: one
+    pre-allocated arrays (those in ``keep`` only when a different array object is passed: the
+    caller promises not to change an array it passed) and every result is returned as a fresh
+    copy. Not thread-safe: one
     instance per thread (each :class:`CasadiDynamics` owns its own).
     """
 
-    def __init__(self, fn: ca.Function):
+    def __init__(self, fn: ca.Function, keep: tuple[int, ...] = ()):
         for i in range(fn.n_in()):
             if fn.nnz_in(i) != fn.numel_in(i) or fn.size2_in(i) != 1:
                 raise ValueError(f"{fn.name()}: input {i} is not a dense column vector")
@@ -500,9 +514,15 @@ class BufferedCall:
             self._buffer.set_arg(i, memoryview(arr))
         for i, arr in enumerate(self._results):
             self._buffer.set_res(i, memoryview(arr))
+        self._keep = set(keep)
+        self._kept: dict[int, np.ndarray] = {}
 
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
         for i, (dst, src) in enumerate(zip(self._args, args, strict=True)):
+            if i in self._keep:  # the caller never changes an array it passed
+                if self._kept.get(i) is src:
+                    continue
+                self._kept[i] = src
             src = np.asarray(src, dtype=float)
             if src.shape != dst.shape:
                 raise ValueError(
@@ -582,6 +602,7 @@ __all__ = [
     "symbolic_aba",
     "symbolic_center_of_mass",
     "symbolic_frame_kinematics",
+    "symbolic_frame_rotation",
     "symbolic_rnea",
     "symbolic_rnea_derivatives",
 ]
