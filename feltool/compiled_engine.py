@@ -8,7 +8,8 @@ through them, returning the same :class:`~feltool.seed.CycleOutcome` as the Pyth
 A run whose cycles all repeat the nominal one (no motion events, a whole-sample period) is run
 :data:`~feltool.compiled.CYCLES_PER_CALL` cycles per call: the outcomes of the cycles that follow
 are kept and handed out while the seed continues from the very state they predicted (the same
-arrays); a resumed or otherwise different state starts a new batch. Otherwise each cycle's data
+arrays) in the same world; a resumed or otherwise different state, or a world event, starts a
+new batch. Otherwise each cycle's data
 (the sensitivity rows at its phases, the other joints' motion, transients) are passed per call.
 """
 
@@ -69,7 +70,7 @@ class CompiledEngine:
         self.exp, self.lay = exp, layout(exp)
         plants = worlds(exp)
         self._worlds = {_fingerprint(p): w for w, p in enumerate(plants)}
-        self._world_of: dict[int, int] = {}
+        self._world_of: dict[int, tuple] = {}
         fns = []
         for w, plant in enumerate(plants):
             fns += [cycle_function(exp, plant, False, f"cycle_{w}"),
@@ -87,11 +88,14 @@ class CompiledEngine:
 
     # -- inputs ---------------------------------------------------------------------------------
     def world(self, plant) -> int:
-        """Which compiled world simulates ``plant``."""
-        w = self._world_of.get(id(plant))
-        if w is None:
-            w = self._world_of[id(plant)] = self._worlds[_fingerprint(plant)]
-        return w
+        """Which compiled world simulates ``plant`` (the seed's world: the known model stands
+        for the experiment's plant, as in :func:`feltool.seed.run_seed`)."""
+        if plant is self.exp.dynamics:
+            return 0
+        seen = self._world_of.get(id(plant))
+        if seen is None or seen[0] is not plant:  # (an id may be reused by a new object)
+            seen = self._world_of[id(plant)] = (plant, self._worlds[_fingerprint(plant)])
+        return seen[1]
 
     def data(self, theta: np.ndarray, cycle: PhaseSamples | None = None,
              transients: dict | None = None) -> np.ndarray:
@@ -176,16 +180,17 @@ def compiled_runner(exp: Experiment, motion=None):
     pending: list[tuple[tuple, CycleOutcome]] = []
 
     def run_fixed(theta, q, v, plant, theta_m=None) -> CycleOutcome:
+        world = engine.world(plant)
         if pending:
-            (t_exp, q_exp, v_exp), nxt = pending.pop(0)
-            if t_exp is theta and q_exp is q and v_exp is v:
+            (t_exp, q_exp, v_exp, w_exp), nxt = pending.pop(0)
+            if t_exp is theta and q_exp is q and v_exp is v and w_exp == world:
                 return nxt
         pending.clear()
-        world = engine.world(plant)
         data = engine.data(theta)
         state0 = engine.state(theta, q, v)
         outs = engine.outcomes(theta, world, state0, data, *engine.many(world, state0, data))
-        pending.extend(((a.theta_next, a.q_end, a.v_end), b) for a, b in zip(outs, outs[1:]))
+        pending.extend(((a.theta_next, a.q_end, a.v_end, world), b)
+                       for a, b in zip(outs, outs[1:]))
         return outs[0]
 
     def run_motion(theta, q, v, plant, theta_m=None) -> CycleOutcome:
