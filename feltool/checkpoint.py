@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import signal
+import time
 from pathlib import Path
 from typing import Any
 
@@ -58,14 +59,25 @@ class Checkpointer:
         directory: Where checkpoints live (``RUN_DIR/checkpoints``).
         seed: The seed.
         every: Save every this many cycles (and on a stop request).
+        min_interval_s: ... but not sooner than this after the last save, in [s] (a seed
+            whose cycles take microseconds would spend its time writing checkpoints).
     """
 
-    def __init__(self, directory: Path, seed: int, every: int = 10):
+    def __init__(self, directory: Path, seed: int, every: int = 10, min_interval_s: float = 0.0):
         self.directory = Path(directory)
         self.seed = seed
         self.every = max(1, int(every))
+        self.min_interval_s = float(min_interval_s)
+        self._last = time.monotonic()
+        #: the cycle of the last checkpoint this object wrote (None: none yet)
+        self.saved_cycle: int | None = None
         self.arrays = self.directory / f"seed-{seed}.npz"
         self.meta = self.directory / f"seed-{seed}.json"
+
+    def due(self, cycle: int) -> bool:
+        """Whether a checkpoint is due after ``cycle``."""
+        return cycle % self.every == 0 and \
+            time.monotonic() - self._last >= self.min_interval_s
 
     def load(self) -> dict[str, Any] | None:
         if not (self.arrays.is_file() and self.meta.is_file()):
@@ -80,7 +92,9 @@ class Checkpointer:
         # The arrays first, then the metadata that names them: a reader only trusts a pair.
         arrays_id = cycle
         save_npz(self.arrays, {**arrays, "arrays_id": np.array(arrays_id)})
-        atomic_write(self.meta, json.dumps({**meta, "cycle": cycle, "arrays_id": arrays_id}))
+        atomic_write(self.meta, json.dumps({**meta, "cycle": cycle, "arrays_id": arrays_id},
+                                           separators=(",", ":")))
+        self._last, self.saved_cycle = time.monotonic(), cycle
 
     def clear(self) -> None:
         self.arrays.unlink(missing_ok=True)

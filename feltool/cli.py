@@ -109,6 +109,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         _print_warnings(exp.robot)
         seeds, cycles = None, None
         out_dir = out_dir or default_out_dir(exp.config.name)
+    print(f"feltool: {exp.engine} engine ({exp.engine_reason})", flush=True)
     viewer = stream = None
     if args.view or args.zmq_url or args.realtime:
         from feltool.rollout import LiveStream
@@ -749,5 +750,18 @@ def _silence_stdout() -> None:
         pass
 
 
+def console() -> None:
+    """The ``feltool`` command: :func:`main`, then exit at once. Everything is written and
+    closed by then; skipping the interpreter's teardown (freeing Pinocchio, CasADi,
+    matplotlib) saves a few tenths of a second per command."""
+    code = main()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console()

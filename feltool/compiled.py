@@ -51,7 +51,7 @@ def c_compiler() -> str | None:
 def unsupported(exp) -> list[tuple[str, str]]:
     """What of ``exp`` the compiled engine cannot run, as ``(yaml path, reason)`` (empty: it
     runs all of it)."""
-    from feltool.ilc import OWN_RUNNER
+    from feltool.fel import FEL_UPDATES
     from feltool.motion import varying_phase
 
     cfg, L = exp.config, exp.config.learning
@@ -60,7 +60,7 @@ def unsupported(exp) -> list[tuple[str, str]]:
         out.append(("learning.sensitivity", "finite_difference is the Python engine's check of "
                                             "the exact sensitivity (the compiled engine "
                                             "differentiates exactly)"))
-    if L.update in OWN_RUNNER:
+    if L.update not in FEL_UPDATES:
         out.append(("learning.update", f"{L.update} runs in the Python engine only (it has its "
                                        "own cycle runner, feltool.ilc)"))
     if cfg.disturbances is not None:
@@ -96,9 +96,12 @@ def check_supported(exp) -> None:
         raise ConfigError(problems, str(exp.source) if exp.source else None)
 
 
-def compile_functions(fns: list[ca.Function], directory: Path | None = None) -> list[ca.Function]:
+def compile_functions(fns: list[ca.Function], directory: Path | None = None,
+                      vm_fallback: bool = True) -> list[ca.Function] | None:
     """Generate ``fns`` to one C file, compile it with the system compiler and load the
-    functions from it; the library is cached under a hash of the graphs and the CasADi version."""
+    functions from it; the library is cached under a hash of the graphs and the CasADi version.
+    Without a working compiler: ``fns`` themselves (CasADi's virtual machine, said once), or
+    None unless ``vm_fallback``."""
     directory = directory or cache_dir()
     digest = hashlib.sha256(ca.__version__.encode())
     for fn in fns:
@@ -108,8 +111,10 @@ def compile_functions(fns: list[ca.Function], directory: Path | None = None) -> 
     compiler = c_compiler()
     if not lib.is_file():
         if compiler is None:
-            _warn_once("no C compiler found (set CC); the compiled backend runs in CasADi's "
-                       "interpreted virtual machine instead, which is much slower")
+            if not vm_fallback:
+                return None
+            note_once("no C compiler found (set CC); the compiled backend runs in CasADi's "
+                      "interpreted virtual machine instead, which is much slower")
             return fns
         directory.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=directory) as tmp:
@@ -125,14 +130,17 @@ def compile_functions(fns: list[ca.Function], directory: Path | None = None) -> 
             except (OSError, subprocess.TimeoutExpired) as exc:
                 proc = subprocess.CompletedProcess([], 1, "", str(exc))
             if proc.returncode != 0 or not out.is_file():
-                _warn_once(f"compiling the cycle failed ({proc.stderr.strip()[:300]}); using "
-                           "CasADi's interpreted virtual machine instead")
+                if not vm_fallback:
+                    return None
+                note_once(f"compiling the cycle failed ({proc.stderr.strip()[:300]}); using "
+                          "CasADi's interpreted virtual machine instead")
                 return fns
             os.replace(out, lib)  # atomic: concurrent workers never load half a library
     return [ca.external(fn.name(), str(lib)) for fn in fns]
 
 
-def _warn_once(message: str) -> None:
+def note_once(message: str) -> None:
+    """Print ``feltool: note: message`` to stderr, once per process."""
     if message not in _WARNED:
         _WARNED.add(message)
         print(f"feltool: note: {message}", file=sys.stderr)
@@ -159,5 +167,5 @@ def feedforward_jacobian(exp) -> ca.Function:
     return ca.Function("ff_jacobian", [theta], [ca.densify(jac)])
 
 
-__all__ = ["CYCLES_PER_CALL", "c_compiler", "cache_dir", "check_supported", "compile_functions",
+__all__ = ["CYCLES_PER_CALL", "c_compiler", "note_once", "cache_dir", "check_supported", "compile_functions",
            "feedforward_jacobian", "unsupported"]

@@ -63,9 +63,11 @@ class CompiledEngine:
     Args:
         exp: The experiment (:func:`feltool.compiled.check_supported` must pass).
         compile: Generate C and compile (else run CasADi's virtual machine: for tests).
+        vm_fallback: When compiling fails, run CasADi's virtual machine (said once); else
+            leave :attr:`functions` None.
     """
 
-    def __init__(self, exp: Experiment, compile: bool = True):
+    def __init__(self, exp: Experiment, compile: bool = True, vm_fallback: bool = True):
         check_supported(exp)
         self.exp, self.lay = exp, layout(exp)
         plants = worlds(exp)
@@ -77,8 +79,10 @@ class CompiledEngine:
                     cycle_function(exp, plant, True, f"trace_{w}"),
                     many_function(exp, plant, CYCLES_PER_CALL, f"many_{w}")]
         if compile:
-            fns = compile_functions(fns)
+            fns = compile_functions(fns, vm_fallback=vm_fallback)
         self.functions = fns
+        if fns is None:
+            return
         self._calls = [BufferedCall(f, keep=(1, 2)) for f in fns]
         self.params = parameters(exp)
         self._learned_joints = tuple(i for i, _ in self.lay.blocks)

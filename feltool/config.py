@@ -957,9 +957,14 @@ class ExperimentConfig(Strict):
     gravity: Gravity | list[Gravity] = Field(9.8, description="Gravity in [m/s^2]: a "
         "magnitude along the world's -z, or a 3-vector. The thesis uses 9.8. Each component "
         f"within +-{MAX_ABS_GRAVITY:g}.")
-    backend: Literal["pinocchio", "casadi", "compiled"] = Field("pinocchio", description=
-        "Known models: Pinocchio; CasADi symbolic expressions built from the same model; or "
-        "compiled: a whole learning cycle generated to C and compiled (cached on disk).")
+    backend: Literal["auto", "pinocchio", "casadi", "compiled"] = Field("auto", description=
+        "The engine of the learning cycles. auto: compiled when a C compiler is present and "
+        "the compiled engine runs everything the config asks (feltool.compiled.unsupported), "
+        "else pinocchio (the run says which, once). compiled: each learning cycle as one CasADi "
+        "graph generated to C and compiled (cached on disk), an error naming what it does not "
+        "run. pinocchio: the Python engine, Pinocchio calls per step (the reference). casadi: "
+        "the Python engine with the known models as CasADi expressions built from the same "
+        "model.")
     period_s: PositiveFloat = Field(le=MAX_PERIOD_S, description="Period T of the rhythmic "
         f"motion in [s] (the phase's starting frequency is 2 pi / T); at most "
         f"{MAX_PERIOD_S:g}, and period_s * sim.rate_hz (the samples per cycle, any number: a "

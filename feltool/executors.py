@@ -38,6 +38,7 @@ class Task:
         cycles: Learning cycles.
         checkpoint_dir: Where to keep this seed's checkpoint, or None.
         checkpoint_every: Cycles between checkpoints.
+        checkpoint_interval_s: Least time between checkpoints in [s].
     """
 
     key: str
@@ -47,6 +48,7 @@ class Task:
     cycles: int
     checkpoint_dir: str | None = None
     checkpoint_every: int = 10
+    checkpoint_interval_s: float = 0.0
 
 
 def _ident(raw: dict, source) -> str:
@@ -76,7 +78,8 @@ def run_task(task: Task, on_cycle: Callable | None = None, put: Callable | None 
     if put is not None:
         def progress(cycle: int, fb: float) -> None:
             put((task.key, task.seed, cycle, fb))
-    checkpoint = (Checkpointer(Path(task.checkpoint_dir), task.seed, task.checkpoint_every)
+    checkpoint = (Checkpointer(Path(task.checkpoint_dir), task.seed, task.checkpoint_every,
+                               task.checkpoint_interval_s)
                   if task.checkpoint_dir else None)
     return run_seed(exp, task.seed, task.cycles, progress, checkpoint, on_cycle)
 

@@ -31,10 +31,8 @@ from feltool.disturbances import problems as disturbance_problems
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.events import check_events
-from feltool.fel import FeedbackErrorLearner
+from feltool.fel import FEL_UPDATES, FeedbackErrorLearner
 from feltool.hybrid import Allocation, HybridLoop, Walker
-from feltool.ilc import OWN_RUNNER
-from feltool.ilc import problems as ilc_problems
 from feltool.memory import check_memory
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.motion import motion_problems, refuse_varying_phase, varying_phase
@@ -89,8 +87,10 @@ class Experiment:
     def phase_varies(self) -> bool:
         """Whether cycles differ in length (a period of no whole number of steps, period
         events, an adaptive phase): metrics.csv then has cycle_s and frequency_hz."""
-        return any(not where.endswith((".amplitude", ".goal"))
-                   for where, _ in varying_phase(self.config))
+        if getattr(self, "_phase_varies", None) is None:
+            self._phase_varies = any(not where.endswith((".amplitude", ".goal"))
+                                     for where, _ in varying_phase(self.config))
+        return self._phase_varies
 
     @property
     def learned_joints(self) -> list[str]:
@@ -107,16 +107,52 @@ class Experiment:
     @property
     def engine(self) -> str:
         """The engine that runs this experiment's learning cycles: ``compiled`` (the cycle as
-        generated C, :mod:`feltool.compiled`) or ``python`` (Pinocchio calls per step)."""
-        return "compiled" if self.config.backend == "compiled" else "python"
+        generated C, :mod:`feltool.compiled`) or ``python`` (Pinocchio calls per step); see
+        :attr:`engine_reason`."""
+        return self._engine()[0]
+
+    @property
+    def engine_reason(self) -> str:
+        """Why :attr:`engine` runs this experiment, in words (``backend: auto``: what the
+        compiled engine lacks, or that it runs everything)."""
+        return self._engine()[1]
+
+    def _engine(self) -> tuple[str, str]:
+        if getattr(self, "_engine_choice", None) is None:
+            from feltool.compiled import c_compiler, unsupported
+
+            backend = self.config.backend
+            if backend == "compiled":
+                choice = ("compiled", "backend: compiled")
+            elif backend != "auto":
+                choice = ("python", f"backend: {backend}")
+            elif c_compiler() is None:
+                choice = ("python", "backend auto: no C compiler (cc or gcc; set CC)")
+            else:
+                missing = unsupported(self)
+                choice = (("python", f"backend auto: {missing[0][0]}: {missing[0][1]}")
+                          if missing else ("compiled", "backend auto"))
+            self._engine_choice = choice
+        return self._engine_choice
 
     def compiled_cycle(self):
         """The compiled engine of this experiment (its cycles built and compiled on first
-        use, cached on disk; :class:`feltool.compiled_engine.CompiledEngine`)."""
+        use, cached on disk; :class:`feltool.compiled_engine.CompiledEngine`). With ``backend:
+        auto``, a compilation that fails switches the experiment to the Python engine (and
+        says so once) and returns None."""
         if getattr(self, "_compiled", None) is None:
             from feltool.compiled_engine import CompiledEngine
 
-            self._compiled = CompiledEngine(self)
+            strict = self.config.backend == "compiled"
+            engine = CompiledEngine(self, vm_fallback=strict)
+            if engine.functions is None:
+                from feltool.compiled import note_once
+
+                reason = "backend auto: compiling the cycle failed"
+                note_once(f"{reason}; running the Python engine instead")
+                self._engine_choice = ("python", reason)
+                return None
+            self._compiled = engine
         return self._compiled
 
     def initial_parameters(self, seed: int) -> np.ndarray:
@@ -425,7 +461,11 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
     if L.step == "per_step" and L.sensitivity != "exact":
         raise ConfigError([("learning.sensitivity", "per_step learning supports only 'exact'")],
                           str(source) if source else None)
-    unsupported = ilc_problems(cfg) + disturbance_problems(cfg)
+    unsupported = disturbance_problems(cfg)
+    if L.update not in FEL_UPDATES:  # (feltool.ilc imports scipy.signal: only when needed)
+        from feltool.ilc import problems as ilc_problems
+
+        unsupported = ilc_problems(cfg) + unsupported
     if unsupported:
         raise ConfigError(unsupported, str(source) if source else None)
     learner = FeedbackErrorLearner(primitives, np.array(learned, dtype=int),
@@ -667,7 +707,7 @@ def _check_phase(cfg: ExperimentConfig, joints: list[str], robot: Robot, fixed: 
                                                 "(the per-step engine has no oscillator)")], src)
     for engine, used in (("the walking/actuated loop", cfg.walking is not None
                           or cfg.actuation is not None),
-                         (f"learning.update {L.update}", L.update in OWN_RUNNER),
+                         (f"learning.update {L.update}", L.update not in FEL_UPDATES),
                          ("a disturbances block", cfg.disturbances is not None),
                          ("learning.model", L.model is not None),
                          ("learning.sensitivity casadi", L.sensitivity == "casadi"),

@@ -33,6 +33,10 @@ from feltool.ops import NUMPY
 from feltool.phase import PhaseSamples
 from feltool.rmp import PrimitiveSet
 
+#: ``learning.update`` values this learner runs (eq. 3.6); the others (ILC, the feedback-only
+#: baseline) have their own cycle runner (:mod:`feltool.ilc`).
+FEL_UPDATES = ("gradient", "gauss_newton")
+
 
 @dataclass
 class FeedbackErrorLearner:

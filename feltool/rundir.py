@@ -76,5 +76,8 @@ def read_metrics(path: Path) -> list[dict[str, float]]:
                 for row in csv.DictReader(fh)]
 
 
-def write_json(path: Path, obj: Any) -> None:
-    atomic_write(path, json.dumps(obj, indent=2) + "\n")
+def write_json(path: Path, obj: Any, compact: bool = False) -> None:
+    """Write ``obj`` as JSON, indented for people (``compact``: one line, for feltool's own
+    records, which the C encoder writes many times faster)."""
+    atomic_write(path, (json.dumps(obj, separators=(",", ":")) if compact
+                        else json.dumps(obj, indent=2)) + "\n")

@@ -33,6 +33,10 @@ from feltool.rundir import atomic_write, load_npz, save_npz, write_json, write_m
 from feltool.runstate import RunLock, read_meta, refuse_existing, set_state
 
 CHECKPOINT_EVERY = 10  # cycles
+CHECKPOINT_INTERVAL_S = 1.0  # [s] at least between a seed's checkpoints
+#: [s] about what starting a pool of worker processes costs: seeds that take less in all run in
+#: this process (the compiled engine's seeds often take milliseconds)
+POOL_START_S = 1.0
 
 
 def default_out_dir(name: str, root: Path = Path("runs")) -> Path:
@@ -136,14 +140,23 @@ def _run_seeds(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int], cycl
     finished = {s: r for s in seeds if (r := load_seed_result(out_dir, s)) is not None
                 and not _needs_more_cycles(r, cycles)}
     tasks = [Task("run", raw, str(exp.source) if exp.source else None, s, cycles,
-                  str(out_dir / "checkpoints"), CHECKPOINT_EVERY)
+                  str(out_dir / "checkpoints"), CHECKPOINT_EVERY, CHECKPOINT_INTERVAL_S)
              for s in seeds if s not in finished]
     results = dict(finished)
-    for task, result in execute(tasks, workers, scheduler, exp.config.name,
-                                sum(cycles for _ in tasks), show_progress, on_cycle,
-                                progress_lines, cycles):
-        save_seed_result(exp, out_dir, result)
-        results[task.seed] = result
+    batches = [tasks]
+    if exp.engine == "compiled" and len(tasks) > 1 and on_cycle is None and not scheduler \
+            and (workers or 2) > 1:
+        batches = [tasks[:1], tasks[1:]]  # the first seed here: is a pool worth its start?
+    for b, batch in enumerate(batches):
+        t0 = time.perf_counter()
+        for task, result in execute(batch, workers if len(batches) == 1 or b else 1, scheduler,
+                                    exp.config.name, cycles * len(batch), show_progress,
+                                    on_cycle, progress_lines, cycles):
+            save_seed_result(exp, out_dir, result)
+            results[task.seed] = result
+        if b == 0 and len(batches) > 1 and \
+                (time.perf_counter() - t0) * len(batches[1]) < POOL_START_S:
+            workers = 1  # the other seeds take less time than starting workers would
     remove_empty(out_dir / "checkpoints")
     return write_results(exp, out_dir, [results[s] for s in seeds], timing)
 
@@ -373,7 +386,8 @@ def save_seed_result(exp: Experiment, out_dir: Path, r: SeedResult) -> None:
     entry = dict(r.summary)
     if r.traces:
         entry["stabilization_error_max_last_cycle_rad"] = stabilization_errors(exp, r.traces)
-    write_json(out_dir / "seeds" / f"seed-{r.seed}.json", {"rows": r.rows, "summary": entry})
+    write_json(out_dir / "seeds" / f"seed-{r.seed}.json", {"rows": r.rows, "summary": entry},
+               compact=True)
 
 
 def load_seed_result(out_dir: Path, seed: int) -> SeedResult | None:

@@ -20,9 +20,7 @@ from feltool.control import wrap
 from feltool.divergence import explain as explain_divergence
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.events import changed_model, plant_for_cycle
-from feltool.fel import feedforward
-from feltool.ilc import OWN_RUNNER
-from feltool.ilc import cycle_runner as ilc_cycle_runner
+from feltool.fel import FEL_UPDATES, feedforward
 from feltool.motion import Motion, varying_phase
 from feltool.phase import PhaseSamples
 from feltool.simulate import ClosedLoop, CycleLog
@@ -202,7 +200,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             progress(cycle, row["fb_abs_mean_error"])
         if on_cycle is not None:
             on_cycle(cycle, *out.trace(), row["fb_abs_mean_error"])
-        if checkpoint is not None and (cycle % checkpoint.every == 0 or stop_requested()):
+        if checkpoint is not None and (checkpoint.due(cycle) or stop_requested()):
             save(cycle, wall_before + time.perf_counter() - t0)
             if stop_requested() and cycle < cycles:
                 raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
@@ -210,7 +208,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     if last is not None:
         traces.update(_trace("last", *last.trace()))
     if checkpoint is not None:  # the final state stays, so that a resume may add cycles
-        if reason is None and rows and rows[-1]["cycle"] % checkpoint.every:
+        if reason is None and rows and checkpoint.saved_cycle != rows[-1]["cycle"]:
             save(rows[-1]["cycle"], wall)
         elif reason is not None:
             checkpoint.clear()
@@ -259,7 +257,7 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
 
     A per-step runner carries the RMP states from cycle to cycle in its ``rmp_states``.
     """
-    if exp.engine == "compiled":
+    if exp.engine == "compiled" and exp.compiled_cycle() is not None:
         from feltool.compiled_engine import compiled_runner
 
         cfg = exp.config
@@ -279,7 +277,9 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
                                           exp.loop.error_rows, exp.loop.limits)
         return loops[id(plant)]
 
-    if exp.config.learning.update in OWN_RUNNER or exp.config.disturbances is not None:
+    if exp.config.learning.update not in FEL_UPDATES or exp.config.disturbances is not None:
+        from feltool.ilc import cycle_runner as ilc_cycle_runner
+
         return ilc_cycle_runner(exp, theta0, seed, loop_for)  # ILC, baseline, disturbances
     if exp.model_learner is not None:
         return lambda theta, q, v, plant, theta_m: _model_cycle(exp, theta, q, v, theta_m,
@@ -302,6 +302,8 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
 
 def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
     """The simulated world from ``cycle`` on if an event starts then, else None."""
+    if not exp.config.events:
+        return None
     backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
     return plant_for_cycle(exp.robot.model, exp.config.events, cycle, backend)
 

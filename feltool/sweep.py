@@ -34,7 +34,14 @@ from feltool.errors import ConfigError, InputError
 from feltool.executors import Task
 from feltool.experiment import build_experiment, resolve_config_path
 from feltool.rundir import atomic_write, write_json
-from feltool.runner import CHECKPOINT_EVERY, execute, load_seed_result, save_seed_result, write_results
+from feltool.runner import (
+    CHECKPOINT_EVERY,
+    CHECKPOINT_INTERVAL_S,
+    execute,
+    load_seed_result,
+    save_seed_result,
+    write_results,
+)
 from feltool.runstate import RunLock, refuse_existing, set_state
 from feltool.safe_yaml import YamlBoundError, load_yaml
 
@@ -148,7 +155,8 @@ def _sweep_points(out_dir: Path, workers, scheduler, show_progress, progress_lin
             if load_seed_result(run_dir, seed) is None:
                 tasks.append(Task(str(i), _point_raw(meta["raw"], point, meta["cycles"]),
                                   str(source), seed, meta["cycles"],
-                                  str(run_dir / "checkpoints"), CHECKPOINT_EVERY))
+                                  str(run_dir / "checkpoints"), CHECKPOINT_EVERY,
+                                  CHECKPOINT_INTERVAL_S))
     for task, result in execute(tasks, workers, scheduler, "sweep",
                                 len(tasks) * meta["cycles"], show_progress,
                                 progress_lines=progress_lines, cycles=meta["cycles"]):
