@@ -82,7 +82,7 @@ def unsupported(exp) -> list[tuple[str, str]]:
         out.append(("learning.model", "model learning runs in the Python engine only (not "
                                       "compiled yet)"))
     for where, what in varying_phase(cfg):
-        if not where.endswith((".amplitude", ".goal")):
+        if not where.endswith((".amplitude", ".goal")) and where != "primitives.phase":
             out.append((where, f"{what} gives cycles of changing length, which the compiled "
                                "engine does not run yet"))
     return out

@@ -244,12 +244,24 @@ def _velocity_pass(model: pin.Model, joints: list[_Joint], q, v):
     return xforms, vel, bias
 
 
-def _rnea_expr(model: pin.Model, joints: list[_Joint], q, v, a):
+def _spatial_inertia(pi):
+    """The 6x6 spatial inertia (linear first) of a body's 10 dynamic parameters
+    ``(m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz)``, the rotational inertia about the body
+    frame's origin (Pinocchio's ``Inertia.FromDynamicParameters``): ``[[m I, -[m c]x],
+    [[m c]x, I_o]]``."""
+    m, h = pi[0], pi[1:4]
+    Io = ca.vertcat(ca.horzcat(pi[4], pi[5], pi[7]), ca.horzcat(pi[5], pi[6], pi[8]),
+                    ca.horzcat(pi[7], pi[8], pi[9]))
+    return ca.vertcat(ca.horzcat(m * ca.DM.eye(3), -_skew(h)), ca.horzcat(_skew(h), Io))
+
+
+def _rnea_expr(model: pin.Model, joints: list[_Joint], q, v, a, pi=None):
     """RNEA (Featherstone, Table 5.1) as an SX expression.
 
     Forward pass: ``v_i = X_i v_p + S qd_i``, ``a_i = X_i a_p + S qdd_i + v_i x (S qd_i)``
     (``a_0 = -g``), ``f_i = I_i a_i + v_i x* (I_i v_i)``. Backward pass: ``tau_i = S^T f_i``,
-    ``f_p += X_i^T f_i``. Finally ``tau += armature * a``.
+    ``f_p += X_i^T f_i``. Finally ``tau += armature * a``. ``pi``: the bodies' dynamic
+    parameters (10 per joint, in joint order) instead of the model's inertias.
     """
     nj = model.njoints
     xforms, vel, bias = _velocity_pass(model, joints, q, v)
@@ -258,7 +270,7 @@ def _rnea_expr(model: pin.Model, joints: list[_Joint], q, v, a):
     for jt in joints:
         i, S = jt.index, _motion_subspace(jt)
         acc[i] = ca.mtimes(xforms[i], acc[jt.parent]) + S * a[jt.idx_v] + bias[i]
-        inertia = _dm(jt.inertia)
+        inertia = _dm(jt.inertia) if pi is None else _spatial_inertia(pi[10 * (i - 1):10 * i])
         force[i] = ca.mtimes(inertia, acc[i]) + _cross_force(vel[i], ca.mtimes(inertia, vel[i]))
     tau = [None] * model.nv
     for jt in reversed(joints):
@@ -352,6 +364,20 @@ def symbolic_rnea(model: pin.Model) -> ca.Function:
     q, v, a = _symbols(model, "a")
     tau = _rnea_expr(model, joints, q, v, a)
     return ca.Function("rnea", [q, v, a], [ca.densify(tau)], ["q", "v", "a"], ["tau"])
+
+
+def symbolic_rnea_parametric(model: pin.Model) -> ca.Function:
+    """``rnea(q, v, a, pi) -> tau``: the inverse model with the bodies' inertial parameters
+    ``pi`` (10 per joint, Pinocchio's ``toDynamicParameters`` order: [kg], [kg m],
+    [kg m^2]) as an input. ``tau`` is linear in ``pi``; its Jacobian by ``pi`` is the joint
+    torque regressor (Pinocchio's ``computeJointTorqueRegressor``)."""
+    _check_has_joints(model)
+    joints = _describe_joints(model)
+    q, v, a = _symbols(model, "a")
+    pi = ca.SX.sym("pi", 10 * (model.njoints - 1))
+    tau = _rnea_expr(model, joints, q, v, a, pi)
+    return ca.Function("rnea_parametric", [q, v, a, pi], [ca.densify(tau)],
+                       ["q", "v", "a", "pi"], ["tau"])
 
 
 def symbolic_aba(model: pin.Model) -> ca.Function:
@@ -605,6 +631,7 @@ __all__ = [
     "symbolic_frame_rotation",
     "symbolic_rnea",
     "symbolic_rnea_derivatives",
+    "symbolic_rnea_parametric",
 ]
 
 
