@@ -52,7 +52,6 @@ def unsupported(exp) -> list[tuple[str, str]]:
     """What of ``exp`` the compiled engine cannot run, as ``(yaml path, reason)`` (empty: it
     runs all of it)."""
     from feltool.fel import FEL_UPDATES
-    from feltool.motion import varying_phase
 
     cfg, L = exp.config, exp.config.learning
     out = []
@@ -71,20 +70,13 @@ def unsupported(exp) -> list[tuple[str, str]]:
                                         "(its cycle length depends on the measured motion)"))
     if exp.robot.model.nq != exp.robot.model.nv:
         out.append(("robot", "the compiled engine needs joints with one coordinate each"))
-    if cfg.walking is not None or cfg.actuation is not None:
-        out.append(("walking" if cfg.walking is not None else "actuation",
-                    "walkers and allocated motors run in the Python engine only (not compiled "
-                    "yet)"))
-    if L.step == "per_step":
-        out.append(("learning.step", "per_step learning runs in the Python engine only (not "
-                                     "compiled yet)"))
-    if L.model is not None:
-        out.append(("learning.model", "model learning runs in the Python engine only (not "
-                                      "compiled yet)"))
-    for where, what in varying_phase(cfg):
-        if not where.endswith((".amplitude", ".goal")) and where != "primitives.phase":
-            out.append((where, f"{what} gives cycles of changing length, which the compiled "
-                               "engine does not run yet"))
+    if cfg.walking is not None and cfg.walking.physical:
+        out.append(("walking.feet", "the physical walker runs in the Python engine only (not "
+                                    "compiled yet)"))
+    elif exp.hybrid is not None:
+        from feltool.compiled_walker import unsupported_walker
+
+        out += unsupported_walker(exp)
     return out
 
 

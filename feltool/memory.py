@@ -6,7 +6,8 @@ matrices Xq, Xv, Xa: about 20 numbers per sample and parameter), the learner's J
 d u_ff / d theta is n x nv x P_learned (with its temporaries about 6 copies), the inverse
 model's derivatives n x nv x nv (about 4), the cycle's log and recorded traces about 30 numbers
 per sample and joint, and model learning's features n x nv x P_model (about 3 copies); and
-every cycle keeps a row of metrics (about 1 kB). The estimate is an upper bound of these
+every cycle keeps a row of metrics (about 1 kB); the compiled engine adds its cycle data and its
+functions' work arrays. The estimate is an upper bound of these
 (measured against the peak resident size in tests/test_physical.py); :func:`check_memory`
 refuses a run whose processes would need more than :data:`~feltool.bounds.MEMORY_FRACTION` of
 the memory available.
@@ -46,8 +47,14 @@ def estimate_bytes(cfg: ExperimentConfig, joints: list[str], n_bodies: int) -> i
         m = cfg.learning.model
         model = 10 * n_bodies if m.features == "regressor" else nv * m.basis
     per_sample = 20 * params + 6 * nv * learned + 4 * nv * nv + 30 * nv + 3 * nv * model
+    compiled = 0
+    if cfg.backend in ("auto", "compiled"):
+        # the compiled engine's cycle data (each learned row twice, in three copies while
+        # passed), its functions' work and output arrays, and CasADi itself
+        per_sample += 24 * learned + 100 * nv
+        compiled = 32 * 2**20
     per_cycle = 1024 + 64 * nv  # one metrics row (a dict of floats) kept per cycle
-    return _FLOAT * n * per_sample + cfg.sim.cycles * per_cycle
+    return _FLOAT * n * per_sample + cfg.sim.cycles * per_cycle + compiled
 
 
 def available_bytes() -> int | None:

@@ -261,8 +261,10 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
         from feltool.compiled_engine import compiled_runner
 
         cfg = exp.config
-        moving = bool(cfg.motion_events) or bool(varying_phase(cfg))
-        return compiled_runner(exp, Motion(exp) if moving else None)
+        per_step = cfg.learning.step == "per_step"
+        moving = bool(cfg.motion_events) or bool(varying_phase(cfg)) or per_step
+        return compiled_runner(exp, Motion(exp, continuous=per_step) if moving else None,
+                               theta0)
     if exp.hybrid is not None:
         return lambda theta, q, v, plant, theta_m=None: _hybrid_cycle(exp, theta, q, v, plant)
     loops: dict[int, ClosedLoop] = {}

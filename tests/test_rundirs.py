@@ -144,8 +144,9 @@ def test_a_second_process_cannot_write_a_running_directory(tmp_path):
 
 def test_a_killed_run_reads_interrupted_and_resumes_to_the_same_numbers(tmp_path):
     out, ref = tmp_path / "killed", tmp_path / "ref"
+    # the Python engine: slow enough to be killed mid-run (the compiled one ends in 0.1 s)
     args = ["two_link_standard", "--seeds", "0-1", "--cycles", "300", "--workers", "1",
-            "--no-progress"]
+            "--no-progress", "--set", "backend=pinocchio"]
     proc = _popen("run", *args, "--out", str(out))
     try:
         _wait_for(out / "checkpoints" / "seed-0.json", proc)

@@ -102,6 +102,13 @@ def test_dask_sweep_survives_a_killed_worker(cluster, local_sweep, tmp_path):
     lc, client = cluster
     out = tmp_path / "killed"
     killed: dict = {}
+    # the Python engine: tasks long enough to be killed mid-run (compiled they take ms); the
+    # local pool's reference runs it too
+    config = tmp_path / "standard_python.yaml"
+    config.write_text(open(STANDARD).read() + "\nbackend: pinocchio\n")
+    local = tmp_path / "local"
+    run_sweep(config, parse_grid(GRID[1::2]), local, seeds=[0, 1], cycles=30, workers=2,
+              show_progress=False)
 
     def kill_a_busy_worker():
         deadline = time.monotonic() + 120
@@ -118,7 +125,7 @@ def test_dask_sweep_survives_a_killed_worker(cluster, local_sweep, tmp_path):
 
     killer = threading.Thread(target=kill_a_busy_worker)
     killer.start()
-    run_sweep(STANDARD, parse_grid(GRID[1::2]), out, seeds=[0, 1], cycles=30,
+    run_sweep(config, parse_grid(GRID[1::2]), out, seeds=[0, 1], cycles=30,
               scheduler=lc.scheduler_address, show_progress=False)
     killer.join()
     assert killed.get("keys"), "no worker was seen holding a task mid-run"
@@ -131,4 +138,4 @@ def test_dask_sweep_survives_a_killed_worker(cluster, local_sweep, tmp_path):
     table = rows(out / "sweep.csv")
     assert len(table) == 8
     # same numbers as the local pool: a retried seed restarts from its checkpoint or from scratch
-    assert table == rows(local_sweep / "sweep.csv")
+    assert table == rows(local / "sweep.csv")

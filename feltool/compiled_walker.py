@@ -1,0 +1,291 @@
+r"""The thesis's pinned walker (and allocated motors) as a CasADi graph: the compiled
+:class:`feltool.hybrid.HybridLoop` and its learning cycle (:func:`feltool.seed._hybrid_cycle`).
+
+Each control step, from the stance label :math:`s` and the number of impacts so far (both part
+of the state):
+
+* the desired joint state :math:`q_d = G_s p_d` from the gait coordinates, with the foot
+  placement's offsets (:meth:`feltool.hybrid.Walker.placement_offset`);
+* feedback (:func:`feltool.cycle.feedback`), :math:`\tau = \mathrm{RNEA}(q_d, \dot q_d,
+  \ddot q_d) + u_{fb}` mapped onto the motors (inertia-weighted or pseudo-inverse
+  allocation, :class:`feltool.hybrid.Allocation`), the plant's semi-implicit Euler sub-steps;
+* the fall check; the guard inside its window of the step, or the clock at the window's end:
+  then the impact (the relabelling, or the rigid impact of the freed model:
+  :math:`\dot q^+ = \dot q^- - M^{-1}J^\top(JM^{-1}J^\top)^{-1}J\dot q^-`, what
+  ``pin.impulseDynamics`` solves) and the new stance label.
+
+A fall freezes the state for the rest of the cycle and masks its steps out. The update
+(eq. 3.6) runs through the stance-dependent map (:math:`J_k = D_k G_{s_k} X_k`), with the
+samples after each impact left out (``learning.impact_window_s``), only if the cycle did not
+fall. Per step the graph reports whether an impact happened, whether by the guard, and the
+swing foot's position, from which the Python side rebuilds the cycle's impacts.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+
+from feltool.compiled_graph import (
+    cycle_stats,
+    desired_from_data,
+    layout,
+    symbolic_forward,
+    symbolic_frames,
+)
+from feltool.cycle import feedback, fel_sums, fel_update, wrap
+from feltool.dynamics.casadi_backend import (
+    symbolic_frame_kinematics,
+    symbolic_rnea,
+    symbolic_rnea_derivatives,
+)
+from feltool.ops import CASADI
+
+
+def unsupported_walker(exp) -> list[tuple[str, str]]:
+    """What of a pinned walker (or allocated motors) the compiled graph does not run."""
+    H, out = exp.hybrid, []
+    W = H.walker
+    if W is not None and W.free_model is not None and \
+            not _same_dynamics(free_model(exp.robot.model), W.free_model):
+        out.append(("walking.contact_frame", "the compiled engine's freed model differs from "
+                                             "the walker's (locked or continuous joints)"))
+    if hasattr(H.known, "rigid"):
+        out.append(("plant.friction", "joint friction in a walker's known model runs in the "
+                                      "Python engine only"))
+    if exp.config.learning.error_space == "motors" or \
+            exp.config.learning.error_estimate != "feedback":
+        out.append(("learning.error_space", "motor-space errors are for physical walkers"))
+    return out
+
+
+def free_model(model: pin.Model) -> pin.Model:
+    """``model`` with a sagittal base of two prismatic joints (x, then z) above its root: the
+    walker's freed model (:class:`feltool.hybrid.Walker`'s ``free_model``, whose composite
+    root joint the symbolic algorithms do not take), built by Pinocchio's ``appendModel``."""
+    base = pin.Model()
+    jx = base.addJoint(0, pin.JointModelPX(), pin.SE3.Identity(), "base_x")
+    jz = base.addJoint(jx, pin.JointModelPZ(), pin.SE3.Identity(), "base_z")
+    frame = base.addFrame(pin.Frame("base_z_frame", jz, 0, pin.SE3.Identity(),
+                                    pin.FrameType.OP_FRAME))
+    return pin.appendModel(base, model, frame, pin.SE3.Identity())
+
+
+def _same_dynamics(a: pin.Model, b: pin.Model) -> bool:
+    """Equal mass matrices and bias forces at a seeded random state (to 1e-12)."""
+    if a.nq != b.nq or a.nv != b.nv:
+        return False
+    rng = np.random.default_rng(0)
+    q, v = rng.uniform(-1, 1, a.nq), rng.uniform(-1, 1, a.nv)
+    da, db = a.createData(), b.createData()
+    Ma, Mb = pin.crba(a, da, q), pin.crba(b, db, q)
+    return bool(np.abs(np.triu(Ma) - np.triu(Mb)).max() < 1e-12 and
+                np.abs(pin.rnea(a, da, q, v, v) - pin.rnea(b, db, q, v, v)).max() < 1e-10)
+
+
+def _mass_matrix(model):
+    """``q -> M(q)`` of a model, symbolically (the RNEA's Jacobian by the accelerations)."""
+    derivs = symbolic_rnea_derivatives(model)
+    nv = model.nv
+    return lambda q: derivs(q, ca.SX.zeros(nv), ca.SX.zeros(nv))[2]
+
+
+def walker_step_function(exp, plant, lay) -> ca.Function:
+    """One control step of the hybrid loop (SX), see the module docstring::
+
+        (x, s, j, k_step, fallen, p, pv, pa, k, kp, kd, targets)
+            -> (x', s', j', k_step', fallen', qd, vd, ad, u_fb, u_rows, u_err, err,
+                impact, by_guard, foot_x, D)
+
+    ``D`` ``(nv, 3 L)``: the learned joints' derivative columns through :math:`G_s`.
+    """
+    H = exp.hybrid
+    W, alloc, law = H.walker, H.allocation, exp.law
+    model = exp.robot.model
+    nv, dt = model.nv, H.dt
+    sym = {name: ca.SX.sym(name, size) for name, size in (
+        ("x", 2 * nv), ("s", 1), ("j", 1), ("k_step", 1), ("fallen", 1), ("p", nv),
+        ("pv", nv), ("pa", nv), ("k", 1), ("kp", nv), ("kd", nv), ("targets", nv))}
+    x, s, j, k_step, fallen = (sym[n] for n in ("x", "s", "j", "k_step", "fallen"))
+    p, pv, pa, k = sym["p"], sym["pv"], sym["pa"], sym["k"]
+    q, v = x[:nv], x[nv:]
+    if W is not None:
+        Gs = [ca.DM(G) for G in W.G]
+        one = s > 0.5
+        qd = ca.if_else(one, Gs[1] @ p, Gs[0] @ p)
+        vd = ca.if_else(one, Gs[1] @ pv, Gs[0] @ pv)
+        ad = ca.if_else(one, Gs[1] @ pa, Gs[0] @ pa)
+        Ts = lay.n * dt / W.steps_per_cycle
+        if W.placement is not None:
+            i, jj, gain = W.placement
+            u = ca.fmin(ca.fmax((k - k_step) * dt / Ts, 0.0), 1.0)
+            e = ca.dot(ca.DM(W.A[jj]), q - qd)
+            ev = ca.dot(ca.DM(W.A[jj]), v - vd)
+            rr, rrd = 3 * u**2 - 2 * u**3, (6 * u - 6 * u**2) / Ts
+            col = ca.DM(W.A_inv[:, i])
+            qd, vd = qd + gain * e * rr * col, vd + gain * (ev * rr + e * rrd) * col
+    else:
+        qd, vd, ad = p, pv, pa
+    track, stab = ca.DM(law.tracking.astype(float)), ca.DM(law.stabilizing.astype(float))
+    C = ca.DM(law.C)
+    r = track * ca.mtimes(C, qd) + stab * sym["targets"]
+    rd = track * ca.mtimes(C, vd)
+    frames = symbolic_frames(law, model)
+    sym_law = SimpleNamespace(C=C, kp=sym["kp"], kd=sym["kd"])
+    u_fb, u_rows, u_err = feedback(CASADI, sym_law, q, v, r, rd, H.error_rows, frames)
+    known = getattr(H.known, "model", model)
+    qs, vs, as_ = (ca.SX.sym(n, nv) for n in ("qs", "vs", "as"))
+    tau_s = symbolic_rnea(known)(qs, vs, as_)
+    Dfull = [ca.jacobian(tau_s, z) for z in (qs, vs, as_)]
+    ff = ca.Function("ff_walk", [qs, vs, as_], [tau_s, *Dfull])
+    tau_ff, Dq, Dv, M = ff(qd, vd, ad)
+    tau = tau_ff + u_fb
+    if alloc is not None:
+        B = ca.DM(alloc.B)
+        if alloc.rule == "pseudo_inverse":
+            tau = B @ (ca.DM(np.linalg.pinv(alloc.B)) @ tau)
+        else:
+            Mq = _mass_matrix(alloc.model)(q)
+            MiB = ca.solve(Mq, B)
+            tau = B @ ca.solve(B.T @ MiB, MiB.T @ tau)
+    else:
+        tau = ca.DM(H.actuated) * tau
+    forward = symbolic_forward(plant)
+    h = dt / H.substeps
+    q1, v1 = q, v
+    for _ in range(H.substeps):
+        a = forward(q1, v1, tau)
+        if H.integrator == "semi_implicit_euler":
+            v1 = v1 + h * a
+            q1 = q1 + h * v1
+        else:
+            q1, v1 = q1 + h * v1, v1 + h * a
+    finite = (ca.sum1(ca.fabs(q1)) + ca.sum1(ca.fabs(v1))) < np.inf
+    fall_now = 1 - finite
+    if W is not None and W.fall_row is not None and np.isfinite(W.fall_max):
+        fall_now = ca.fmax(fall_now, ca.fabs(ca.dot(ca.DM(W.fall_row), q1)) > W.fall_max)
+    impact = by_guard = ca.SX(0)
+    foot_x = ca.SX(np.nan)
+    q2, v2, s2, j2, kstep2 = q1, v1, s, j, k_step
+    if W is not None:
+        t = (k + 1) * dt
+        lo, hi = (j + W.window[0]) * Ts, (j + W.window[1]) * Ts
+        guard = W.guard_sign * (ca.dot(ca.DM(W.guard_row), q1) - W.guard_value) >= 0
+        by_guard = ca.logic_and(t >= lo - 1e-9, guard)
+        impact = ca.logic_and(ca.logic_and(j < W.steps_per_cycle, 1 - fall_now),
+                              ca.logic_or(by_guard, t >= hi - 1e-9))
+        by_guard = ca.logic_and(by_guard, impact)
+        vi = v1
+        if W.free_model is not None:
+            fm = free_model(model)
+            fk = symbolic_frame_kinematics(fm, fm.getFrameId(W.free_model.frames[
+                W.foot_frame].name))
+            qe = ca.vertcat(0, 0, q1)
+            pos, J = fk(qe, ca.SX.zeros(nv + 2), ca.SX.zeros(nv + 2))[:2]
+            foot_x = pos[0]
+            if W.impact == "rigid":
+                Jc = J[[0, 2], :]
+                Me = _mass_matrix(fm)(qe)
+                ve = ca.vertcat(0, 0, v1)
+                X = ca.solve(Me, Jc.T)
+                vi = (ve - X @ ca.solve(Jc @ X, Jc @ ve))[2:]
+        R = ca.DM(W.R)
+        q2 = ca.if_else(impact, R @ q1, q1)
+        v2 = ca.if_else(impact, R @ vi, v1)
+        s2 = ca.if_else(impact, 1 - s, s)
+        j2 = j + impact
+        kstep2 = ca.if_else(impact, k + 1, k_step)
+    # derivative columns of the learned joints through G_s
+    cols = []
+    for D in (Dq, Dv, M):
+        for i, _ in lay.blocks:
+            if W is not None:
+                cols.append(ca.if_else(one, D @ ca.DM(W.G[1][:, i]), D @ ca.DM(W.G[0][:, i])))
+            else:
+                cols.append(D[:, i])
+    Dcols = ca.horzcat(*cols) if cols else ca.SX(nv, 0)
+    y = ca.mtimes(C, q)
+    for row, kin in frames.items():
+        y[row] = kin(q)[0]
+    controlled = np.flatnonzero(law.tracking | law.stabilizing).tolist()
+    err = ca.mmax(ca.fabs(wrap(CASADI, r - y)[controlled])) if controlled else ca.SX(0)
+    # a cycle that fell keeps its state for the steps left
+    live = 1 - fallen
+    nxt = [ca.if_else(live, a, b) for a, b in ((ca.vertcat(q2, v2), x), (s2, s), (j2, j),
+                                                (kstep2, k_step))]
+    fallen2 = ca.fmax(fallen, fall_now)
+    names = ["x", "s", "j", "k_step", "fallen", "p", "pv", "pa", "k", "kp", "kd", "targets"]
+    return ca.Function("walk_step", [sym[n] for n in names],
+                       [*nxt, fallen2, qd, vd, ad, u_fb, u_rows, u_err, err * live,
+                        impact * live, by_guard * live, foot_x, Dcols])
+
+
+def walker_cycle_function(exp, plant, full: bool = False,
+                          name: str = "walk_cycle") -> ca.Function:
+    """The pinned walker's cycle ``(state, data, params) -> (state', stats)`` (the data and
+    params of :mod:`feltool.compiled_graph`); ``stats`` also hold, after the arm's, the fall
+    flag, the number of steps run, and per step the impact flag, whether by the guard, and
+    the swing foot's x [m]. With ``full``: the trace (``X``, ``U``, ``Urows``, ``Uerr``,
+    ``Qd``)."""
+    lay = layout(exp)
+    learner, law = exp.learner, exp.law
+    nv, n, L, PL = lay.nv, lay.n, len(lay.blocks), lay.n_learned
+    state = ca.MX.sym("state", lay.n_state)
+    data = ca.MX.sym("data", lay.n_data)
+    params = ca.MX.sym("params", lay.n_params)
+    theta, x0 = state[:PL], state[PL:]
+    kp, kd, targets = params[:nv], params[nv:2 * nv], params[2 * nv:3 * nv]
+    rates, damping = params[3 * nv:3 * nv + PL], params[3 * nv + PL]
+    sens, (P, Pv, Pa), _, _ = desired_from_data(lay, theta, data)
+    step = walker_step_function(exp, plant, lay).mapaccum("walk", n, [0, 1, 2, 3, 4],
+                                                         [0, 1, 2, 3, 4])
+    zero = ca.MX(0)
+    X_after, S, Jn, Ks, F, Qd, Vd, Ad, U, Urows, Uerr, err, imp, guard, foot, Dall = step(
+        x0, zero, zero, zero, zero, P, Pv, Pa, ca.DM(np.arange(n)).T,
+        ca.repmat(kp, 1, n), ca.repmat(kd, 1, n), ca.repmat(targets, 1, n))
+    X = ca.horzcat(x0, X_after[:, :n - 1])
+    x_end = X_after[:, n - 1]
+    fell = F[:, n - 1]
+    live = ca.horzcat(ca.DM.ones(1, 1), 1 - F[:, :n - 1])  # the steps the cycle ran
+    n_run = ca.sum2(live)
+    finite = (ca.sum1(ca.sum2(ca.fabs(X) * ca.repmat(live, 2 * nv, 1)))
+              + ca.sum1(ca.fabs(x_end))) < np.inf
+    theta_next = theta
+    if L:
+        keep = live
+        window = int(round(exp.config.learning.impact_window_s / exp.config.dt))
+        if window > 0:  # the samples after each impact leave the update (_impact_masked)
+            hit = ca.MX.zeros(1, n)
+            for d in range(1, window + 1):  # impact after step k: rows k+1 .. k+window
+                hit = hit + ca.horzcat(ca.DM.zeros(1, d), imp[:, :n - d])
+            hit = hit + ca.horzcat(ca.repmat(imp[:, n - 1], 1, window),
+                                   ca.DM.zeros(1, n - window))  # the last wraps to row 0
+            keep = keep * (hit < 0.5)
+        E = Uerr * ca.repmat(keep, nv, 1)
+        deriv = [[Dall[:, [c * L + l + 3 * L * k for k in range(n)]] for c in range(3)]
+                 for l in range(L)]
+        rows = None
+        if learner.update == "gauss_newton":
+            any_err = ca.sum2(ca.fabs(E)) > 0
+            rows = ca.fmax(any_err, ca.DM((learner.error_mask > 0).astype(float)))
+            rows = ca.repmat(rows, 1, n)
+        grad, hess = fel_sums(CASADI, sens, deriv, E, rows)
+        step_ = fel_update(CASADI, theta, grad, hess, rates, learner.is_goal, learner.update,
+                           damping)
+        theta_next = ca.if_else(fell, theta, step_)
+    stats = cycle_stats(law, live, X, Qd, U, Urows, Uerr, err, ca.MX.zeros(2 * nv, n),
+                        finite, live)
+    stats = ca.vertcat(stats, fell, n_run, imp.T, guard.T, foot.T)
+    outs = [ca.vertcat(theta_next, x_end), stats]
+    names = ["state_next", "stats"]
+    if full:
+        outs += [X, U, Urows, Uerr, Qd]
+        names += ["X", "U", "Urows", "Uerr", "Qd"]
+    return ca.Function(name, [state, data, params], [ca.densify(o) for o in outs],
+                       ["state", "data", "params"], names)
+
+
+__all__ = ["unsupported_walker", "walker_cycle_function", "walker_step_function"]
