@@ -10,8 +10,9 @@ Python API, as simple as the CLI::
 __version__ = "0.1.0"
 
 from feltool.errors import ConfigError, FeltoolError, InputError, RobotError, SimulationDiverged  # noqa: E402
-from feltool.experiment import Experiment, SeedResult, build_experiment, load_experiment, run_seed  # noqa: E402
+from feltool.experiment import Experiment, build_experiment, load_experiment  # noqa: E402
 from feltool.robot import Robot, load_robot  # noqa: E402
+from feltool.seed import SeedResult, run_seed  # noqa: E402
 
 __all__ = [
     "ConfigError", "Experiment", "FeltoolError", "InputError", "Robot", "RobotError",

@@ -59,8 +59,9 @@ class Checkpointer:
         directory: Where checkpoints live (``RUN_DIR/checkpoints``).
         seed: The seed.
         every: Save every this many cycles (and on a stop request).
-        min_interval_s: ... but not sooner than this after the last save, in [s] (a seed
-            whose cycles take microseconds would spend its time writing checkpoints).
+        min_interval_s: ... but, after the first, not sooner than this after the last save,
+            in [s] (a seed whose cycles take microseconds would spend its time writing
+            checkpoints).
     """
 
     def __init__(self, directory: Path, seed: int, every: int = 10, min_interval_s: float = 0.0):
@@ -75,9 +76,10 @@ class Checkpointer:
         self.meta = self.directory / f"seed-{seed}.json"
 
     def due(self, cycle: int) -> bool:
-        """Whether a checkpoint is due after ``cycle``."""
-        return cycle % self.every == 0 and \
-            time.monotonic() - self._last >= self.min_interval_s
+        """Whether a checkpoint is due after ``cycle``: every ``every`` cycles, the first at
+        once, the others ``min_interval_s`` apart."""
+        return cycle % self.every == 0 and (
+            self.saved_cycle is None or time.monotonic() - self._last >= self.min_interval_s)
 
     def load(self) -> dict[str, Any] | None:
         if not (self.arrays.is_file() and self.meta.is_file()):

@@ -2,7 +2,8 @@
 
 Building is separate from running: :func:`load_experiment` returns an :class:`Experiment` whose
 robot, primitives, feedback laws and learner can be inspected before anything is simulated;
-:func:`~feltool.seed.run_seed` (re-exported here) runs one seed's learning cycles.
+:func:`~feltool.seed.run_seed` runs one seed's learning cycles (available here too, imported on
+first use: this module does not import the one that runs what it builds).
 """
 
 from __future__ import annotations
@@ -39,7 +40,6 @@ from feltool.motion import motion_problems, refuse_varying_phase, varying_phase
 from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, samples_demo, sine_demo
 from feltool.robot import Robot, data_dir, load_robot, robot_spec, with_angle_coordinates
-from feltool.seed import CycleOutcome, SeedResult, run_seed, stabilization_errors  # noqa: F401
 from feltool.simulate import ClosedLoop, Limits
 from feltool.walker_config import physical_loop, walker_model
 
@@ -800,5 +800,18 @@ def reduce_robot(robot: Robot, locked: dict[str, float]) -> Robot:
     return reduced
 
 
-__all__ = ["Experiment", "SeedResult", "build_experiment", "load_experiment", "run_seed",
-           "stabilization_errors", "validate", "FeltoolError"]
+_RUNNING = {"CycleOutcome": "feltool.seed", "SeedResult": "feltool.seed",
+            "run_seed": "feltool.seed", "stabilization_errors": "feltool.observers"}
+
+
+def __getattr__(name: str):
+    """``run_seed`` and its results, from the modules that run experiments (imported on first
+    use, so that building never imports running: no import cycle)."""
+    if name in _RUNNING:
+        import importlib
+
+        return getattr(importlib.import_module(_RUNNING[name]), name)
+    raise AttributeError(f"module 'feltool.experiment' has no attribute '{name}'")
+
+
+__all__ = ["Experiment", "build_experiment", "load_experiment", "validate", "FeltoolError"]

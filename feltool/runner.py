@@ -27,10 +27,12 @@ from feltool.checkpoint import Interrupted, remove_empty, request_stop, reset_st
 from feltool.config import apply_overrides, config_to_yaml
 from feltool.errors import InputError
 from feltool.executors import Task, inline, make_executor, run_task
-from feltool.experiment import Experiment, SeedResult, build_experiment, stabilization_errors
+from feltool.experiment import Experiment, build_experiment
 from feltool.memory import check_memory
+from feltool.observers import stabilization_errors
 from feltool.rundir import atomic_write, load_npz, save_npz, write_json, write_metrics
 from feltool.runstate import RunLock, read_meta, refuse_existing, set_state
+from feltool.seed import SeedResult
 
 CHECKPOINT_EVERY = 10  # cycles
 CHECKPOINT_INTERVAL_S = 1.0  # [s] at least between a seed's checkpoints

@@ -15,13 +15,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from feltool.checkpoint import Checkpointer, Interrupted, stop_requested
+from feltool.checkpoint import Checkpointer
 from feltool.control import wrap
 from feltool.divergence import explain as explain_divergence
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.events import changed_model, plant_for_cycle
 from feltool.fel import FEL_UPDATES, feedforward
 from feltool.motion import Motion, varying_phase
+from feltool.observers import Callback, SeedCheckpoints, SeedRecord
 from feltool.phase import PhaseSamples
 from feltool.simulate import ClosedLoop, CycleLog
 
@@ -85,26 +86,24 @@ class CycleOutcome:
     desired: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
-def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
-             progress: Callable[[int, float], None] | None = None,
-             checkpoint: Checkpointer | None = None,
-             on_cycle: Callable[[int, CycleLog, np.ndarray, float], None] | None = None
-             ) -> SeedResult:
-    """Run one seed's learning and return its metrics (see the run directory's metrics.csv).
+@dataclass
+class SeedState:
+    """Where a seed is between cycles: the RMP parameters, the robot's state, the inverse-model
+    correction's parameters (``learning.model``, else None) and the simulated world."""
 
-    Args:
-        progress: Called after every cycle with (cycle, mean |error feedback| [N m]).
-        checkpoint: The seed continues from its last checkpoint (bit-identically), saves one
-            every ``checkpoint.every`` cycles, and on a stop request saves and raises
-            :class:`~feltool.checkpoint.Interrupted`.
-        on_cycle: Called after every cycle with (cycle, log, Qd, fb): the cycle's simulated
-            states ``log.q`` (n_steps x nv, [rad]), its forward (desired) trajectory ``Qd``
-            (n_steps x nv, [rad]) and fb as for ``progress`` (the live viewer streams these).
-    """
+    theta: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    theta_m: np.ndarray | None
+    plant: Dynamics | None = None
+
+
+def initial_state(exp: Experiment, seed: int) -> SeedState:
+    """A seed's state before its first cycle: its initial parameters (random draws from
+    ``seed`` only), the robot on the forward trajectory with the stabilized quantities on
+    target (a physical walker after ``walking.settle_cycles`` unlearned cycles)."""
     cfg = exp.config
-    cycles = cycles or cfg.sim.cycles
     theta = exp.initial_parameters(seed)
-    n = exp.primitives.n_steps
     Qd, Vd, _ = exp.primitives.desired(theta)
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
     if exp.hybrid is not None:
@@ -119,134 +118,77 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
                 if log.fall:
                     break
                 q, v = log.q_end, log.v_end
-    rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
-    reason, start, wall_before, loop_before = None, 1, 0.0, 0.0
+    model = exp.model_learner
+    return SeedState(theta, q, v, model.initial_parameters() if model else None)
+
+
+def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
+             progress: Callable[[int, float], None] | None = None,
+             checkpoint: Checkpointer | None = None,
+             on_cycle: Callable[[int, CycleLog, np.ndarray, float], None] | None = None
+             ) -> SeedResult:
+    """Run one seed's learning and return its metrics (see the run directory's metrics.csv).
+
+    Its one job is to drive the cycles: each is run by the experiment's engine
+    (:func:`_cycle_runner`), checked (:func:`feltool.divergence.explain`) and handed to the
+    observers (:mod:`feltool.observers`): the seed's record, its checkpoints, ``progress`` and
+    ``on_cycle``.
+
+    Args:
+        progress: Called after every cycle with (cycle, mean |error feedback| [N m]).
+        checkpoint: The seed continues from its last checkpoint (bit-identically), saves one
+            every ``checkpoint.every`` cycles, and on a stop request saves and raises
+            :class:`~feltool.checkpoint.Interrupted`.
+        on_cycle: Called after every cycle with (cycle, log, Qd, fb): the cycle's simulated
+            states ``log.q`` (n_steps x nv, [rad]), its forward (desired) trajectory ``Qd``
+            (n_steps x nv, [rad]) and fb as for ``progress`` (the live viewer streams these).
+    """
+    cycles = cycles or exp.config.sim.cycles
+    state = initial_state(exp, seed)
     t_build = time.perf_counter()
-    run_cycle = _cycle_runner(exp, theta, seed)  # the compiled engine compiles (or loads) here
+    run_cycle = _cycle_runner(exp, state.theta, seed)  # the compiled engine compiles here
     compile_s = time.perf_counter() - t_build
     motion: Motion | None = getattr(run_cycle, "motion", None)
-    switches = {ev.cycle for _, ev in cfg.motion_events}
-    model = exp.model_learner
-    theta_m = model.initial_parameters() if model else None
-    model_history = [theta_m]
-    saved = checkpoint.load() if checkpoint is not None else None
+    record = SeedRecord(exp, seed, state)
+    observers: list = [record]
+    observers += [Callback(progress)] if progress is not None else []
+    observers += [Callback(on_cycle, with_trace=True)] if on_cycle is not None else []
+    saver = SeedCheckpoints(checkpoint, record, run_cycle, cycles) if checkpoint else None
+    observers += [saver] if saver is not None else []
+    start = 1
+    saved = saver.load() if saver is not None else None
     if saved is not None:
         start = saved["cycle"] + 1
-        theta, q, v = saved["theta"], saved["q"], saved["v"]
-        rows, wall_before = saved["rows"], saved["wall_s"]
-        loop_before = saved.get("loop_s", wall_before)
-        history = list(saved["history"])
-        traces = {k[len("trace_"):]: val for k, val in saved.items() if k.startswith("trace_")}
+        state = SeedState(saved["theta"], saved["q"], saved["v"], saved.get("model_theta"))
+        record.restore(saved)
         if "rmp_x" in saved:
-            _restore_rmp_states(run_cycle, saved)
-        if hasattr(run_cycle, "restore_state"):  # ILC sequence, disturbance state
+            for key, x, S in zip(saved["rmp_keys"], saved["rmp_x"], saved["rmp_S"]):
+                run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
+        if hasattr(run_cycle, "restore_state"):  # ILC sequence, disturbance state, motion
             run_cycle.restore_state(saved)
-        if model is not None:
-            theta_m, model_history = saved["model_theta"], list(saved["model_history"])
-    t0 = time.perf_counter()
-    plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
-    hits = [np.zeros(len(exp.joints), int), np.zeros(len(exp.joints), int)]
-    checked, contacts, out, cycle, steps = False, [], None, start - 1, 0
-    loop = 0.0  # [s] inside the learning cycles only (what steps/s counts)
-    if saved is not None:  # counters of the cycles before the checkpoint
-        steps = int(saved.get("steps", n * len(rows)))
-        impacts.update(saved.get("impacts", {}))
-        contacts = list(saved.get("contacts", []))
-        if saved.get("limit_hits") is not None:
-            checked = True
-            hits = [np.array(h, int) for h in saved["limit_hits"]]
-
-    def save(at_cycle: int, wall: float) -> None:
-        _save_checkpoint(checkpoint, at_cycle, theta, q, v, rows, history, traces, wall,
-                         run_cycle, (theta_m, model_history) if model is not None else None,
-                         {"impacts": impacts, "contacts": contacts, "steps": steps,
-                          "loop_s": loop_before + loop,
-                          "limit_hits": [h.tolist() for h in hits] if checked else None})
+    record.started = time.perf_counter()
+    state.plant = _plant_at_start(exp, start)
+    reason, out = None, None
     for cycle in range(start, cycles + 1):
         if cycle > start:
-            plant = _plant_for_cycle(exp, cycle) or plant
+            state.plant = _plant_for_cycle(exp, cycle) or state.plant
         t_cycle = time.perf_counter()
         if motion is not None:
-            theta = motion.apply_events(cycle, theta)
-        before, out = out, run_cycle(theta, q, v, plant, theta_m)
-        loop += time.perf_counter() - t_cycle
-        steps += out.cycle.n if out.cycle is not None else n
-        for _, by_guard, _ in out.impacts:
-            impacts["guard" if by_guard else "clock"] += 1
-        if out.limit_hits is not None:
-            checked = True
-            hits[0] += out.limit_hits[0]
-            hits[1] += out.limit_hits[1]
-        reason = explain_divergence(exp, out, cycle, rows)
+            state.theta = motion.apply_events(cycle, state.theta)
+        out = run_cycle(state.theta, state.q, state.v, state.plant, state.theta_m)
+        record.count(out, time.perf_counter() - t_cycle)
+        reason = explain_divergence(exp, out, cycle, record.rows)
         if reason:
             break
-        row = _metrics(exp, seed, cycle, out, theta)
-        if model is not None:
-            row["model_param_norm"] = float(np.linalg.norm(theta_m))
-            theta_m = out.theta_m_next
-            model_history.append(theta_m)
-        rows.append(row)
-        if out.contact is not None:
-            contacts.append(out.contact)
-        if cycle == 1:
-            traces.update(_trace("first", *out.trace()))
-        if cycle in switches and before is not None and before.desired is not None:
-            traces.update(_switch_trace(cycle, before, out, cfg.dt))
-        last = out
-        theta = out.theta_next
-        history.append(theta[exp.learner.learned].copy())
-        q, v = out.q_end, out.v_end
-        if progress is not None:
-            progress(cycle, row["fb_abs_mean_error"])
-        if on_cycle is not None:
-            on_cycle(cycle, *out.trace(), row["fb_abs_mean_error"])
-        if checkpoint is not None and (checkpoint.due(cycle) or stop_requested()):
-            save(cycle, wall_before + time.perf_counter() - t0)
-            if stop_requested() and cycle < cycles:
-                raise Interrupted(f"seed {seed} stopped after cycle {cycle} (checkpoint saved)")
-    wall = wall_before + time.perf_counter() - t0
-    if last is not None:
-        traces.update(_trace("last", *last.trace()))
-    if checkpoint is not None:  # the final state stays, so that a resume may add cycles
-        if reason is None and rows and checkpoint.saved_cycle != rows[-1]["cycle"]:
-            save(rows[-1]["cycle"], wall)
-        elif reason is not None:
-            checkpoint.clear()
-    summary = _seed_summary(exp, seed, rows, reason, wall, steps, loop_before + loop, compile_s)
-    summary["cycles_planned"] = cycles
-    if cfg.walking is not None and cfg.walking.physical:
-        failed = out.contact if reason and out is not None else None
-        summary["walking"] = walking_summary(exp, rows, contacts, failed, reason)
-    elif exp.hybrid is not None and exp.hybrid.walker is not None:
-        summary["walking"] = pinned_walking_summary(exp, last, traces, impacts, reason)
-    summary["learned_feedback"] = learned_feedback(exp, rows)
-    summary["limits"] = ({"joint_limit_steps": _nonzero(exp.joints, hits[0]),
-                          "torque_limit_steps": _nonzero(exp.joints, hits[1])}
-                         if checked else "not checked")
-    if exp.hybrid is not None and exp.hybrid.walker is not None:
-        summary["guard_impacts"], summary["clock_impacts"] = impacts["guard"], impacts["clock"]
-    if exp.hybrid is not None and rows and reason is None and cfg.walking is not None \
-            and cfg.walking.poincare:
-        from feltool.gait import poincare
-
-        summary["poincare"] = poincare(exp, theta, q, v, plant)
-    params = exp.split_parameters(theta)
-    if hasattr(run_cycle, "extra_params"):  # an ILC's learned torque sequence
-        params.update(run_cycle.extra_params())
-    hist = np.array(history)
-    for name in exp.learned_joints:
-        sl = exp.primitives.slices[exp.joints.index(name)]
-        cols = [c for c, p in enumerate(exp.learner.learned) if sl.start <= p < sl.stop]
-        params[f"{name}.weights_history"] = hist[:, cols[:-1]]
-        params[f"{name}.goal_history"] = hist[:, cols[-1]]
-    if model is not None:
-        params["model.theta"] = theta_m
-        params["model.theta_history"] = np.array(model_history)
-    return SeedResult(seed, rows, summary, params, traces)
-
-
-def _nonzero(names: list[str], counts: np.ndarray) -> dict[str, int]:
-    return {name: int(c) for name, c in zip(names, counts) if c}
+        row = record.row(cycle, out, state.theta, state.theta_m)
+        state = SeedState(out.theta_next, out.q_end, out.v_end, out.theta_m_next, state.plant)
+        for observer in observers:
+            observer.after_cycle(cycle, out, state, row)
+    summary = record.summary(state, reason, cycles, compile_s, out)
+    if saver is not None:
+        saver.finish(state, reason)
+    return SeedResult(seed, record.rows, summary, record.parameters(state, run_cycle),
+                      record.traces)
 
 
 def _cycle_runner(exp: Experiment, theta0: np.ndarray,
@@ -317,28 +259,6 @@ def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
         return exp.dynamics
     backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
     return make_dynamics(changed_model(exp.robot.model, events), backend)
-
-
-def _save_checkpoint(checkpoint: Checkpointer, cycle, theta, q, v, rows, history, traces,
-                     wall, run_cycle, model_state=None, counters: dict | None = None) -> None:
-    arrays = {"theta": theta, "q": q, "v": v, "history": np.array(history)}
-    if model_state is not None:
-        arrays["model_theta"], arrays["model_history"] = model_state[0], np.array(model_state[1])
-    arrays.update({f"trace_{k}": val for k, val in traces.items()})
-    if hasattr(run_cycle, "extra_state"):
-        arrays.update(run_cycle.extra_state())
-    states = getattr(run_cycle, "rmp_states", None)
-    if states is not None:
-        keys = sorted(states)
-        arrays["rmp_keys"] = np.array(keys)
-        arrays["rmp_x"] = np.array([states[k][0] for k in keys])
-        arrays["rmp_S"] = np.array([states[k][1] for k in keys])
-    checkpoint.save(cycle, arrays, {"rows": rows, "wall_s": wall, **(counters or {})})
-
-
-def _restore_rmp_states(run_cycle, saved: dict) -> None:
-    for key, x, S in zip(saved["rmp_keys"], saved["rmp_x"], saved["rmp_S"]):
-        run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
 
 
 def _feedforward(exp: Experiment, Qd, Vd, Ad) -> tuple[np.ndarray, list | None]:
@@ -465,66 +385,6 @@ def contact_metrics(log, exp: Experiment) -> dict[str, float]:
         "stabilized_rms": float(np.sqrt(np.mean(err**2))) if err.size else 0.0,
         "not_walking": log.not_walking,
     }
-
-
-def walking_summary(exp: Experiment, rows: list, contacts: list[dict], failed: dict | None,
-                    reason: str | None) -> dict[str, Any]:
-    """A physical walker's seed: whether it walked every step, the kind of contact violation
-    that stopped it (``not_walking``), steps, distance [m], mean step length [m], speed [m/s],
-    cost of transport (motors' absolute work / (m g distance)) and the stabilized quantities'
-    RMS error [rad] over the last cycle, the contact extremes over all cycles."""
-    walked = reason is None
-    kind = failed.get("not_walking") if failed else None
-    out: dict[str, Any] = {"walked": walked, "not_walking": kind,
-                           "reason": reason if kind else None}
-    if contacts:
-        dist = sum(c["distance"] for c in contacts)
-        dur = sum(c["duration"] for c in contacts)
-        last = contacts[-1]
-        mg = exp.robot.total_mass * float(np.linalg.norm(exp.robot.model.gravity.linear))
-        out.update({
-            "steps": int(sum(c["steps"] for c in contacts)), "distance_m": dist,
-            "step_length_m": last["step_length"],
-            "speed_m_per_s": last["distance"] / last["duration"] if last["duration"] else None,
-            "cost_of_transport": (last["work"] / (mg * last["distance"])
-                                  if last["distance"] > 0 else None),
-            "stabilized_rms_last_rad": last["stabilized_rms"],
-            "min_normal_force_N": min(c["min_normal_force"] for c in contacts),
-            "max_friction_ratio": max(c["max_friction_ratio"] for c in contacts),
-            "min_clearance_m": min(c["min_clearance"] for c in contacts),
-            "max_impulse_ratio": max(c["max_impulse_ratio"] for c in contacts),
-            "walk_time_s": dur,
-        })
-    return out
-
-
-def pinned_walking_summary(exp: Experiment, last: CycleOutcome | None, traces: dict,
-                           impacts: dict[str, int], reason: str | None) -> dict[str, Any]:
-    """The thesis's pinned walker (``impact: relabel`` or ``rigid``, no contact model): whether it
-    walked without falling, steps, the last cycle's mean step length [m] and speed [m/s], and
-    the stabilized quantities' RMS error [rad] over the last cycle."""
-    out: dict[str, Any] = {"walked": reason is None, "not_walking": None,
-                           "steps": impacts["guard"] + impacts["clock"]}
-    if last is not None and last.impacts:
-        lengths = [abs(x) for _, _, x in last.impacts]
-        out["step_length_m"] = float(np.mean(lengths))
-        out["speed_m_per_s"] = float(np.sum(lengths) / exp.config.period_s)
-    stab = exp.law.stabilizing
-    if "last_q_system" in traces and stab.any():
-        err = wrap(exp.law.quantity(traces["last_q_system"])[:, stab] - exp.law.targets[stab])
-        out["stabilized_rms_last_rad"] = float(np.sqrt(np.mean(err**2)))
-    return out
-
-
-def learned_feedback(exp: Experiment, rows: list[dict]) -> dict[str, dict[str, float]]:
-    """Each learned joint's own mean |feedback| [N m] in the first and the last cycle."""
-    out = {}
-    for name in exp.learned_joints:
-        fb = [r[f"fb_abs_mean_{name}"] for r in rows]
-        if fb:
-            out[name] = {"first": fb[0], "last": fb[-1],
-                         "ratio": fb[-1] / fb[0] if fb[0] else None}
-    return out
 
 
 def _motor_hits(exp: Experiment, log) -> np.ndarray:
@@ -661,76 +521,3 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
     return out
 
 
-def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
-             theta: np.ndarray) -> dict[str, float]:
-    fb, rms = out.fb_abs_mean, out.track_err_rms
-    row: dict[str, float] = {"seed": seed, "cycle": cycle}
-    for i, name in enumerate(exp.joints):
-        row[f"fb_abs_mean_{name}"] = float(fb[i])
-    row["fb_abs_mean_stabilized"] = out.fb_stabilized
-    row["fb_abs_mean_total"] = float(fb.sum())
-    row["fb_abs_mean_error"] = out.fb_error
-    for i, name in enumerate(exp.joints):
-        row[f"track_err_rms_{name}"] = float(rms[i])
-    row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
-    if exp.phase_varies and out.cycle is not None:  # cycles of changing length
-        row["cycle_s"] = out.cycle.n * exp.config.dt
-        row["frequency_hz"] = float(out.cycle.dphi.sum() / (2.0 * np.pi * row["cycle_s"]))
-    if out.contact is not None:
-        for key in ("min_normal_force", "max_friction_ratio", "min_clearance",
-                    "max_impulse_ratio", "impact_energy_lost", "step_length", "distance"):
-            row[key] = out.contact[key]
-    return row
-
-
-def _trace(which: str, log: CycleLog, Qd: np.ndarray) -> dict[str, np.ndarray]:
-    return {f"{which}_q_system": log.q, f"{which}_q_forward": Qd, f"{which}_u_fb": log.u_fb}
-
-
-def _switch_trace(cycle: int, before: CycleOutcome, after: CycleOutcome,
-                  dt: float) -> dict[str, np.ndarray]:
-    """The desired trajectory across a motion event at the start of ``cycle``: the cycle
-    before it and the cycle it starts, one after the other (``switch<cycle>_t`` [s] from the
-    event, ``_q_forward`` [rad], ``_v_forward`` [rad/s])."""
-    Q = np.concatenate([before.desired[0], after.desired[0]])
-    V = np.concatenate([before.desired[1], after.desired[1]])
-    t = (np.arange(len(Q)) - len(before.desired[0])) * dt
-    return {f"switch{cycle}_t": t, f"switch{cycle}_q_forward": Q, f"switch{cycle}_v_forward": V}
-
-
-def _seed_summary(exp: Experiment, seed: int, rows, reason: str | None, wall: float,
-                  steps: int, loop: float, compile_s: float) -> dict[str, Any]:
-    """The seed's entry of summary.json. ``wall_s``: the seed's whole time [s] (its cycles and
-    what observes them: metrics, traces, checkpoints, progress); ``loop_s``: inside the learning
-    cycles only, which ``steps_per_s`` counts; ``compile_s``: building (the compiled engine:
-    generating and compiling, or loading) the cycle engine before the first cycle."""
-    fb = [r["fb_abs_mean_error"] for r in rows]
-    fb0 = fb[0] if fb else None
-    converged = None
-    if fb:
-        threshold = 0.05 * fb0
-        above = [i for i, f in enumerate(fb) if f >= threshold]
-        last_above = above[-1] if above else -1
-        if last_above < len(fb) - 1:
-            converged = rows[last_above + 1]["cycle"]
-    out = {"seed": seed, "cycles": len(rows), "fb_initial": fb0, "fb_final": fb[-1] if fb else None,
-           "fb_ratio": (fb[-1] / fb0) if fb and fb0 else None, "converged_cycle": converged,
-           "wall_s": round(wall, 4), "loop_s": round(loop, 6), "compile_s": round(compile_s, 4),
-           "steps": steps, "steps_per_s": round(steps / loop, 1) if loop > 0 else None,
-           "diverged": reason is not None}
-    if reason:
-        out["diverged_reason"] = f"seed {seed}, cycle {len(rows) + 1}: {reason}"
-    return out
-
-
-def stabilization_errors(exp: Experiment, traces: dict[str, np.ndarray]) -> dict[str, float]:
-    """Max deviation of each stabilized quantity from its target over the last cycle, in [rad],
-    for the system (``<joint>_system``) and the forward trajectory (``<joint>_forward``)."""
-    out = {}
-    for i, name in enumerate(exp.joints):
-        if not exp.law.stabilizing[i]:
-            continue
-        for kind in ("system", "forward"):
-            y = exp.law.quantity(traces[f"last_q_{kind}"])[:, i]
-            out[f"{name}_{kind}"] = float(np.abs(wrap(y - exp.law.targets[i])).max())
-    return out

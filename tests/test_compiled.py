@@ -138,7 +138,7 @@ def test_compiled_backend_rejects_what_it_cannot_do(tmp_path):
 def test_compiled_runs_several_cycles_per_call_and_resumes_bit_identically(tmp_path, monkeypatch):
     """The compiled code runs CYCLES_PER_CALL cycles per call; stopping at a cycle that is not a
     multiple of it and resuming from the checkpoint gives the same rows and parameters."""
-    import feltool.seed as experiment
+    import feltool.checkpoint as experiment
     from feltool.checkpoint import Checkpointer, Interrupted
     from feltool.compiled import CYCLES_PER_CALL
 

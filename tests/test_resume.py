@@ -16,7 +16,9 @@ from feltool.rundir import load_npz
 from .conftest import CONFIGS, feltool
 
 STANDARD = str(CONFIGS / "two_link_standard.yaml")
-ARGS = ["--seeds", "0-3", "--cycles", "120", "--workers", "2", "--no-progress"]
+# the Python engine: a run long enough to be stopped mid-way (the compiled one takes 0.1 s)
+ARGS = ["--seeds", "0-3", "--cycles", "120", "--workers", "2", "--no-progress", "--set",
+        "backend=pinocchio"]
 
 
 def test_sigterm_then_resume_is_bit_identical(tmp_path):
