@@ -121,6 +121,14 @@ class FeedbackLaw:
         R[:, self.stabilizing] = self.targets[self.stabilizing]
         return R, Rd
 
+    def reference(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`references` at one sample: :math:`r, \\dot r` ``(nv,)`` for the desired
+        state ``q_d, v_d`` ``(nv,)`` (the same numbers, without the 2-D temporaries)."""
+        if getattr(self, "_tracked", None) is None:  # C with the tracking rows only
+            self._tracked = self.C * self.tracking[:, None]
+            self._held = np.where(self.stabilizing, self.targets, 0.0)
+        return self._tracked @ q_d + self._held, self._tracked @ v_d
+
     def feedback(self, q: np.ndarray, v: np.ndarray, r: np.ndarray, rd: np.ndarray) -> np.ndarray:
         """Feedback torques :math:`u_{fb}` in [N m] at one state."""
         return self.kp * (r - self.C @ q) + self.kd * (rd - self.C @ v)

@@ -29,13 +29,16 @@ with the base freed (model :math:`q_e = (x, z, q)`), Pinocchio's ``impulseDynami
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
 
 from feltool.control import FeedbackLaw
+from feltool.cycle import advance
 from feltool.dynamics import Dynamics
+from feltool.ops import NUMPY
 
 
 @dataclass
@@ -58,16 +61,29 @@ class Allocation:
     def __post_init__(self):
         self.data = self.model.createData()
         self._pinv = np.linalg.pinv(self.B)
+        self._lower = np.tril_indices(self.model.nv, -1)
 
     def joint_torque(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """The joint torques :math:`B u` in [N m] the motors deliver for a wanted ``tau``."""
+        """The joint torques :math:`B u` in [N m] the motors deliver for a wanted ``tau``
+        (:math:`M^{-1}` by Pinocchio's ``computeMinverse``)."""
         if self.rule == "pseudo_inverse":
             return self.B @ (self._pinv @ tau)
-        M = pin.crba(self.model, self.data, q)
-        M = np.triu(M) + np.triu(M, 1).T
-        MiB = np.linalg.solve(M, self.B)
-        u = np.linalg.solve(self.B.T @ MiB, MiB.T @ tau)
-        return self.B @ u
+        Mi = pin.computeMinverse(self.model, self.data, q)
+        Mi[self._lower] = Mi.T[self._lower]  # Pinocchio fills the upper triangle
+        MiB = Mi @ self.B
+        return self.B @ _solve_small(self.B.T @ MiB, MiB.T @ tau)
+
+
+def _solve_small(S: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``S^-1 r`` for a symmetric positive definite ``S``: one or two motors by the closed-form
+    inverse (numpy's solve costs microseconds of call overhead per control step), else LU."""
+    if len(r) == 1:
+        return r / S[0, 0]
+    if len(r) == 2:
+        a, b, d = S[0, 0], S[0, 1], S[1, 1]
+        det = a * d - b * b
+        return np.array([(d * r[0] - b * r[1]) / det, (a * r[1] - b * r[0]) / det])
+    return np.linalg.solve(S, r)
 
 
 @dataclass
@@ -169,7 +185,7 @@ def fall_reason(q: np.ndarray, v: np.ndarray, fall_row: np.ndarray | None,
                 fall_max: float) -> str | None:
     """Why a walker fell (a non-finite state, or ``|fall_row @ q| > fall_max`` in [rad]), or
     None. Shared by the pinned and the physical walker."""
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+    if not math.isfinite(q.sum() + v.sum()):  # a NaN or an infinity anywhere
         return "the state became non-finite"
     if fall_row is not None:
         angle = float(fall_row @ q)
@@ -248,30 +264,23 @@ class HybridLoop:
         semi = self.integrator == "semi_implicit_euler"
         Ts = n * self.dt / W.steps_per_cycle if W else None
         k_step = 0  # first control step of the current step
+        if W:  # the desired joint trajectories at both stance labels, q_d = G_s p_d
+            GP = [(P @ G.T, Pv @ G.T, Pa @ G.T) for G in W.G]
         for k in range(n):
             if W:
-                G = W.G[stance]
-                qd, vd, ad = G @ P[k], G @ Pv[k], G @ Pa[k]
+                qd, vd, ad = (X[k] for X in GP[stance])
                 if W.placement is not None:
                     dq, dv = W.placement_offset(q, v, qd, vd, (k - k_step) * self.dt, Ts)
                     qd, vd = qd + dq, vd + dv
             else:
                 qd, vd, ad = P[k], Pv[k], Pa[k]
             Q[k], V[k], Qd[k], Vd[k], Ad[k], labels[k] = q, v, qd, vd, ad, stance
-            r, rd = law.references(qd[None], vd[None])
-            U[k], Urows[k], Uerr[k] = law.terms(q, v, r[0], rd[0], self.error_rows)
+            r, rd = law.reference(qd, vd)
+            U[k], Urows[k], Uerr[k] = law.terms(q, v, r, rd, self.error_rows)
             tau = self.known.inverse(qd, vd, ad) + U[k]
             tau = alloc.joint_torque(q, tau) if alloc else self.actuated * tau
-            for _ in range(self.substeps):
-                a = plant.forward(q, v, tau)
-                if semi:
-                    v = v + h * a
-                    q = q + h * v
-                else:
-                    q, v = q + h * v, v + h * a
-            fall = W.fallen(q, v) if W else (None if np.all(np.isfinite(q)) and
-                                             np.all(np.isfinite(v)) else
-                                             "the state became non-finite")
+            q, v = advance(NUMPY, plant.forward, q, v, tau, h, self.substeps, semi)
+            fall = W.fallen(q, v) if W else fall_reason(q, v, None, np.inf)
             if fall:
                 k_end = k + 1
                 return HybridLog(Q[:k_end], V[:k_end], U[:k_end], q, v, Qd[:k_end], Vd[:k_end],

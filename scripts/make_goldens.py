@@ -52,7 +52,8 @@ def main() -> None:
               "tree_dirty": dirty, "created_utc": datetime.now(timezone.utc).isoformat(),
               "files": {}}
     for config, seeds in GOLDENS.items():
-        exp = load_experiment(ROOT / "configs" / f"{config}.yaml")
+        # the Python engine, the reference (backend auto would run the compiled one)
+        exp = load_experiment(ROOT / "configs" / f"{config}.yaml", ["backend=pinocchio"])
         rows = [row for seed in seeds for row in run_seed(exp, seed, CYCLES).rows]
         name = golden_name(config, seeds)
         write_metrics(DATA / name, rows)

@@ -40,14 +40,15 @@ def _goldens() -> dict:
     return json.loads((ROOT / "tests" / "data" / "goldens.json").read_text())
 
 
+@pytest.mark.parametrize("backend", ["pinocchio", "compiled"])
 @pytest.mark.parametrize("name", ["two_link_standard", "two_link_human_arm"])
-def test_existing_configs_give_the_golden_metrics(name, tmp_path):
+def test_existing_configs_give_the_golden_metrics(name, backend, tmp_path):
     """With no plant block and with an explicit `plant: {}` (a separate copy of the model) the
     metrics are byte-identical, and they equal the golden metrics.csv (seeds 0-1, 6 cycles)
     written by scripts/make_goldens.py (its docstring says where the numbers come from; the
-    goldens are regenerated only by it, for an intended change). The comparison allows 1e-9
-    relative: refactors so far moved the last bits (< 1e-11); a real change of the method moves
-    the metrics by 1e-4 or more (scripts/mutation_check.py)."""
+    goldens are regenerated only by it, for an intended change), on both engines. The
+    comparison allows 1e-9 relative: refactors so far moved the last bits (< 1e-11); a real
+    change of the method moves the metrics by 1e-4 or more (scripts/mutation_check.py)."""
     import csv
     import hashlib
     import io
@@ -62,7 +63,7 @@ def test_existing_configs_give_the_golden_metrics(name, tmp_path):
     golden = list(csv.DictReader(io.StringIO((ROOT / "tests" / "data" / fname).read_text())))
     texts = []
     for overrides in ([], ["plant={}"]):
-        exp = load_experiment(CONFIGS / f"{name}.yaml", overrides)
+        exp = load_experiment(CONFIGS / f"{name}.yaml", [*overrides, f"backend={backend}"])
         assert (exp.plant is exp.dynamics) == (not overrides)
         rows = [row for seed in meta["seeds"] for row in run_seed(exp, seed, meta["cycles"]).rows]
         write_metrics(tmp_path / "metrics.csv", rows)

@@ -124,13 +124,14 @@ def test_rmp_follows_a_changing_speed_exactly():
 
 # -- acceptance 7: any period runs and learns; the thesis's cycle is unchanged -----------------
 
-def test_a_whole_sample_clock_gives_the_golden_metrics_to_1e_10(tmp_path):
+@pytest.mark.parametrize("backend", ["pinocchio", "compiled"])
+def test_a_whole_sample_clock_gives_the_golden_metrics_to_1e_10(tmp_path, backend):
     """phase: clock with a whole-sample period: metrics.csv equals the goldens (written by
-    scripts/make_goldens.py with the fixed-cycle code) to 1e-10 relative."""
+    scripts/make_goldens.py with the fixed-cycle code) to 1e-10 relative, on both engines."""
     record = json.loads((ROOT / "tests" / "data" / "goldens.json").read_text())
     for fname, meta in record["files"].items():
         golden = list(csv.DictReader(io.StringIO((ROOT / "tests" / "data" / fname).read_text())))
-        exp = load_experiment(ROOT / meta["config"])
+        exp = load_experiment(ROOT / meta["config"], [f"backend={backend}"])
         assert exp.config.primitives.phase == "clock" and exp.config.whole_period
         rows = [r for s in meta["seeds"] for r in run_seed(exp, s, meta["cycles"]).rows]
         write_metrics(tmp_path / "metrics.csv", rows)

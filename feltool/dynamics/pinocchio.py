@@ -24,12 +24,19 @@ class PinocchioDynamics:
         self.euclidean = model.nq == model.nv and all(
             j.shortname() in _EUCLIDEAN_JOINTS for j in model.joints[1:]
         )
+        # pin.aba returns a new array (copying it cost more than ABA itself), unless this
+        # Pinocchio returns a view into its Data: then forward copies
+        q0, z = pin.neutral(model), np.zeros(model.nv)
+        first = pin.aba(model, self.data, q0, z, z)
+        second = pin.aba(model, self.data, q0, z, np.ones(model.nv))
+        self._aba_owns = first is not second and not np.shares_memory(first, second)
 
     def inverse(self, q, v, a):
         return pin.rnea(self.model, self.data, q, v, a).copy()
 
     def forward(self, q, v, tau):
-        return pin.aba(self.model, self.data, q, v, tau).copy()
+        a = pin.aba(self.model, self.data, q, v, tau)
+        return a if self._aba_owns else a.copy()
 
     def inverse_derivatives(self, q, v, a):
         pin.computeRNEADerivatives(self.model, self.data, q, v, a)
@@ -49,14 +56,14 @@ class PinocchioDynamics:
         """``(tau, d tau/d q, d tau/d v, M)`` along a trajectory, shapes ``(n, nv)`` and
         ``(n, nv, nv)``: one pass of Pinocchio's RNEA derivatives per sample."""
         n, nv = len(Q), self.nv
-        tau, Dq, Dv, M = np.empty((n, nv)), np.empty((n, nv, nv)), np.empty((n, nv, nv)), \
-            np.empty((n, nv, nv))
+        tau, D = np.empty((n, nv)), np.empty((n, 3, nv, nv))
         model, data, derivatives = self.model, self.data, pin.computeRNEADerivatives
-        for k in range(n):
-            Dq[k], Dv[k], M[k] = derivatives(model, data, Q[k], V[k], A[k])
+        for k in range(n):  # (the returned matrices are views into data: copied at once)
+            D[k] = derivatives(model, data, Q[k], V[k], A[k])
             tau[k] = data.tau
+        M = D[:, 2]
         M = np.triu(M) + np.swapaxes(np.triu(M, 1), 1, 2)  # Pinocchio fills the upper triangle
-        return tau, Dq, Dv, M
+        return tau, D[:, 0], D[:, 1], M
 
     def integrate(self, q, dq):
         if self.euclidean:
