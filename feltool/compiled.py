@@ -71,8 +71,9 @@ def unsupported(exp) -> list[tuple[str, str]]:
     if exp.robot.model.nq != exp.robot.model.nv:
         out.append(("robot", "the compiled engine needs joints with one coordinate each"))
     if cfg.walking is not None and cfg.walking.physical:
-        out.append(("walking.feet", "the physical walker runs in the Python engine only (not "
-                                    "compiled yet)"))
+        from feltool.compiled_physical import unsupported_physical
+
+        out += unsupported_physical(exp)
     elif exp.hybrid is not None:
         from feltool.compiled_walker import unsupported_walker
 

@@ -81,10 +81,16 @@ class CompiledEngine:
         self._worlds = {_fingerprint(p): w for w, p in enumerate(plants)}
         self._world_of: dict[int, tuple] = {}
         self.per_step = exp.config.learning.step == "per_step"
-        self.walker = exp.hybrid is not None
+        self.physical = exp.config.walking is not None and exp.config.walking.physical
+        self.walker = exp.hybrid is not None and not self.physical
         fns = []
         for w, plant in enumerate(plants):
-            if self.walker:
+            if self.physical:
+                from feltool.compiled_physical import physical_cycle_function as build
+
+                fns += [build(exp, plant, False, f"cycle_{w}"),
+                        build(exp, plant, True, f"trace_{w}")]
+            elif self.walker:
                 from feltool.compiled_walker import walker_cycle_function as build
 
                 fns += [build(exp, plant, False, f"cycle_{w}"),
@@ -103,7 +109,7 @@ class CompiledEngine:
         if fns is None:
             return
         self._calls = [BufferedCall(f, keep=(1, 2)) for f in fns]
-        self._n_fns = 2 if self.per_step else 3
+        self._n_fns = 2 if self.per_step or self.physical else 3
         self.params = parameters(exp)
         self._learned_joints = tuple(i for i, _ in self.lay.blocks)
         self._data_key, self._data = None, None
@@ -147,6 +153,9 @@ class CompiledEngine:
             parts += [psi.ravel(order="F"), psi.ravel()]
         if lay.masked:
             parts.append(pad(np.ones(n)))
+        if self.physical:  # the referenced joints' samples (a designed gait)
+            for i in sorted(exp.hybrid.reference):
+                parts += [np.asarray(x[:lay.n], float) for x in exp.hybrid.reference[i]]
         out = np.concatenate(parts)
         if nominal:
             self._data_key, self._data = key, out
@@ -307,6 +316,8 @@ def compiled_runner(exp: Experiment, motion=None, theta0: np.ndarray | None = No
 
     if engine.per_step:
         return _per_step_runner(exp, engine, motion, theta0)
+    if engine.physical:
+        return _physical_runner(exp, engine)
     if motion is None:
         return run_fixed
     run_motion.motion, run_motion.extra_state = motion, motion.state
@@ -344,6 +355,52 @@ def _per_step_runner(exp: Experiment, engine: CompiledEngine, motion, theta0: np
 
     run.rmp_states = states
     run.motion, run.extra_state, run.restore_state = motion, motion.state, motion.restore
+    return run
+
+
+def _physical_runner(exp: Experiment, engine: CompiledEngine):
+    """The physical walker: one cycle per call. A cycle the graph reports stopped (a contact
+    check, a fall, no touchdown) is the seed's last: the Python engine reruns it from the same
+    state for its message and numbers."""
+    from feltool.compiled_physical import CONTACT, PhysicalGraph
+    from feltool.seed import CycleOutcome, _hybrid_cycle
+
+    nv, PL, spc = engine.lay.nv, engine.lay.n_learned, exp.hybrid.walker.steps_per_cycle
+    fields = PhysicalGraph(exp).row_fields
+    offsets = np.cumsum([0] + [sz for _, sz in fields])
+    k = 4 * nv + len(SCALARS)
+
+    def run(theta, q, v, plant, theta_m=None) -> CycleOutcome:
+        data = engine.data(theta)
+        state0 = engine.state(theta, q, v)
+        state, stats = engine.cycle(0, state0, data)
+        if stats[k] != 0:  # stopped: the Python engine's outcome of this very cycle
+            return _hybrid_cycle(exp, theta, q, v, plant)
+        m = int(round(stats[k + 1]))
+        theta_next = theta.copy()
+        theta_next[exp.learner.learned] = state[:PL]
+        x_end = state[PL:]
+        max_error, max_speed, fb_stab, fb_err, finite = stats[2 * nv:2 * nv + 5].tolist()
+        at, lengths = stats[k + 2:k + 2 + spc], stats[k + 2 + spc:k + 2 + 2 * spc]
+        contact = dict(zip(CONTACT, stats[k + 2 + 2 * spc:].tolist()))
+        contact["steps"] = int(round(contact["steps"]))
+        contact["not_walking"] = None
+
+        def trace():
+            rows = engine.trace(0, state0, data)[2]
+            rw = {n: rows[o:o + sz, :m].T for (n, sz), o in zip(fields, offsets)}
+            return CycleLog(rw["q"], rw["v"], rw["U"], x_end[:nv], x_end[nv:], rw["Urows"],
+                            rw["Uerr"]), rw["qd"]
+
+        out = CycleOutcome(theta_next, x_end[:nv], x_end[nv:], stats[:nv], stats[nv:2 * nv],
+                           max_error, max_speed, finite == 1.0 and np.isfinite(state).all(),
+                           trace, fb_stab, fb_err,
+                           limit_hits=(np.zeros(nv, int),
+                                       stats[3 * nv:4 * nv].round().astype(int)))
+        out.impacts = [(int(round(s)), True, float(length)) for s, length in zip(at, lengths)]
+        out.contact = contact
+        return out
+
     return run
 
 

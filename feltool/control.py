@@ -116,18 +116,22 @@ class FeedbackLaw:
 
     def references(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """References :math:`r, \\dot r`, each ``(n, nv)``, for desired trajectories ``(n, nv)``."""
-        R = np.where(self.tracking, q_d @ self.C.T, 0.0)
-        Rd = np.where(self.tracking, v_d @ self.C.T, 0.0)
-        R[:, self.stabilizing] = self.targets[self.stabilizing]
-        return R, Rd
+        tracked, held = self._reference_rows()
+        return q_d @ tracked.T + held, v_d @ tracked.T
 
     def reference(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`references` at one sample: :math:`r, \\dot r` ``(nv,)`` for the desired
         state ``q_d, v_d`` ``(nv,)`` (the same numbers, without the 2-D temporaries)."""
-        if getattr(self, "_tracked", None) is None:  # C with the tracking rows only
+        tracked, held = self._reference_rows()
+        return tracked @ q_d + held, tracked @ v_d
+
+    def _reference_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """C with only the tracking rows, and the stabilizing rows' targets (0 elsewhere):
+        :math:`r = C_{track} q_d + r_{held}`."""
+        if getattr(self, "_tracked", None) is None:
             self._tracked = self.C * self.tracking[:, None]
             self._held = np.where(self.stabilizing, self.targets, 0.0)
-        return self._tracked @ q_d + self._held, self._tracked @ v_d
+        return self._tracked, self._held
 
     def feedback(self, q: np.ndarray, v: np.ndarray, r: np.ndarray, rd: np.ndarray) -> np.ndarray:
         """Feedback torques :math:`u_{fb}` in [N m] at one state."""

@@ -92,6 +92,22 @@ def advance(xp, forward, q, v, tau, h: float, substeps: int, semi_implicit: bool
     return q, v
 
 
+def stepper(xp, forward, h: float, substeps: int, semi_implicit: bool, limits=None,
+            integrate=None):
+    """:func:`advance` with its options fixed once for a loop: ``(q, v, tau) -> (q, v)``. The
+    common step (one semi-implicit Euler sub-step, plain vectors, no limit to apply) skips the
+    per-call option checks; its numbers are :func:`advance`'s."""
+    applies = limits is not None and (limits.torques == "saturate" or limits.joints == "enforce")
+    if substeps == 1 and semi_implicit and integrate is None and not applies:
+        def step(q, v, tau):
+            v = v + h * forward(q, v, tau)
+            return q + h * v, v
+
+        return step
+    return lambda q, v, tau: advance(xp, forward, q, v, tau, h, substeps, semi_implicit,
+                                     limits, integrate)
+
+
 def clamp(xp, limits, q, v):
     """Joints held at their position limits: the position clipped, the velocity into the
     limit set to zero."""
@@ -181,4 +197,4 @@ def fel_sums(xp, sens: list, deriv: list, E, rows=None):
     return g, xp.blocks(blocks)
 
 
-__all__ = ["advance", "clamp", "feedback", "fel_sums", "fel_update", "wrap"]
+__all__ = ["advance", "clamp", "feedback", "fel_sums", "fel_update", "stepper", "wrap"]

@@ -36,7 +36,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.control import FeedbackLaw
-from feltool.cycle import advance
+from feltool.cycle import stepper
 from feltool.dynamics import Dynamics
 from feltool.ops import NUMPY
 
@@ -264,6 +264,7 @@ class HybridLoop:
         semi = self.integrator == "semi_implicit_euler"
         Ts = n * self.dt / W.steps_per_cycle if W else None
         k_step = 0  # first control step of the current step
+        step = stepper(NUMPY, plant.forward, h, self.substeps, semi)
         if W:  # the desired joint trajectories at both stance labels, q_d = G_s p_d
             GP = [(P @ G.T, Pv @ G.T, Pa @ G.T) for G in W.G]
         for k in range(n):
@@ -279,7 +280,7 @@ class HybridLoop:
             U[k], Urows[k], Uerr[k] = law.terms(q, v, r, rd, self.error_rows)
             tau = self.known.inverse(qd, vd, ad) + U[k]
             tau = alloc.joint_torque(q, tau) if alloc else self.actuated * tau
-            q, v = advance(NUMPY, plant.forward, q, v, tau, h, self.substeps, semi)
+            q, v = step(q, v, tau)
             fall = W.fallen(q, v) if W else fall_reason(q, v, None, np.inf)
             if fall:
                 k_end = k + 1

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from feltool.control import FeedbackLaw
-from feltool.cycle import advance
+from feltool.cycle import advance, stepper
 from feltool.dynamics import Dynamics
 from feltool.ops import NUMPY
 
@@ -132,12 +132,12 @@ class ClosedLoop:
         F = S * (u_ff + B)
         SK = S[:, None] * K
         X = np.empty((n, 2 * nv))
-        forward, h, substeps = self.dynamics.forward, self.dt / self.substeps, self.substeps
-        semi = self.integrator == "semi_implicit_euler"
         lim = self.limits
+        step = stepper(NUMPY, self.dynamics.forward, self.dt / self.substeps, self.substeps,
+                       self.integrator == "semi_implicit_euler", lim)
         for k in range(n):
             X[k, :nv], X[k, nv:] = q, v
-            q, v = advance(NUMPY, forward, q, v, F[k] - SK @ X[k], h, substeps, semi, lim)
+            q, v = step(q, v, F[k] - SK @ X[k])
         U = B - X @ K.T
         log = CycleLog(X[:, :nv], X[:, nv:], U, q, v, U, U * self.error_rows)
         if lim is not None:

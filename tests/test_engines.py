@@ -13,11 +13,6 @@ from feltool.experiment import load_experiment, run_seed
 from .conftest import CONFIGS, feltool
 
 SHIPPED = sorted(CONFIGS.glob("*.yaml")) + sorted((CONFIGS / "gaits").glob("*.yaml"))
-#: Shipped configs the compiled engine does not run yet: the physical walkers (contact
-#: dynamics, touchdowns located inside a step, the mechanical phase); backend auto runs them
-#: on the Python engine and says why.
-NOT_COMPILED = {"compass_gait", "five_link_walker", "three_link_walker"}
-COMPILED = [p for p in SHIPPED if p.stem not in NOT_COMPILED]
 
 
 @pytest.fixture(autouse=True)
@@ -33,35 +28,47 @@ def _rows_equal(ref, comp, rtol=1e-8):
         np.testing.assert_allclose(b, a, rtol=rtol, atol=1e-12, err_msg=key)
 
 
-def test_only_the_physical_walkers_are_left_to_the_python_engine():
-    """backend auto runs every shipped config but the physical walkers compiled, and names
-    the feature it lacks for those."""
-    for path in SHIPPED:
-        exp = load_experiment(path)
-        if path.stem in NOT_COMPILED:
-            assert exp.engine == "python"
-            assert exp.engine_reason.startswith("backend auto: walking.feet: the physical "
-                                                "walker"), exp.engine_reason
-        else:
-            assert exp.engine == "compiled", (path.stem, exp.engine_reason)
-
-
-@pytest.mark.parametrize("path", COMPILED, ids=lambda p: p.stem)
-def test_every_shipped_config_runs_compiled_with_the_python_engines_metrics(path):
-    """backend auto picks the compiled engine for the config (nothing refused), and three
-    cycles of seed 0 on it equal the Python engine's metrics.csv rows to 1e-8."""
+def test_backend_auto_compiles_every_shipped_config():
+    """No shipped config is refused by the compiled engine: backend auto picks it for each."""
     from feltool.compiled import c_compiler
 
     if c_compiler() is None:
         pytest.skip("no C compiler (cc or gcc) on PATH: install gcc")
-    auto = load_experiment(path)
-    assert auto.engine == "compiled", auto.engine_reason
-    ref = run_seed(load_experiment(path, ["backend=pinocchio"]), 0, 3)
-    comp = run_seed(auto, 0, 3)
+    for path in SHIPPED:
+        exp = load_experiment(path)
+        assert exp.engine == "compiled", (path.stem, exp.engine_reason)
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+def test_every_shipped_config_runs_compiled_with_the_python_engines_metrics(path):
+    """Three cycles of seed 0 on the compiled engine equal the Python engine's metrics.csv
+    rows to 1e-8 (the walkers' contact metrics and touchdowns included; the Poincare
+    analysis after the run, Python either way, is left out)."""
+    from feltool.compiled import c_compiler
+
+    if c_compiler() is None:
+        pytest.skip("no C compiler (cc or gcc) on PATH: install gcc")
+    over = ["walking.poincare=false"] if "gaits" in path.parts else []
+    ref = run_seed(load_experiment(path, ["backend=pinocchio", *over]), 0, 3)
+    comp = run_seed(load_experiment(path, ["backend=compiled", *over]), 0, 3)
     assert ref.summary["diverged"] is False
     _rows_equal(ref, comp)
-    assert comp.summary.get("walking") is None or \
-        comp.summary["walking"]["walked"] == ref.summary["walking"]["walked"]
+    walk = ref.summary.get("walking")
+    if walk is not None:
+        assert comp.summary["walking"]["walked"] == walk["walked"]
+        assert comp.summary["walking"]["steps"] == walk["steps"]
+
+
+def test_a_physical_walker_that_stops_gives_the_python_engines_reason():
+    """A contact check that fails ends the cycle on the compiled engine too, with the Python
+    engine's message and kind (the stopped cycle is rerun there)."""
+    path = CONFIGS / "gaits" / "three_link_walker.yaml"
+    over = ["walking.poincare=false", "walking.friction=0.3"]
+    ref = run_seed(load_experiment(path, ["backend=pinocchio", *over]), 0, 2)
+    comp = run_seed(load_experiment(path, ["backend=compiled", *over]), 0, 2)
+    assert "the touchdown impulse ratio" in ref.summary["diverged_reason"]
+    assert comp.summary["diverged_reason"] == ref.summary["diverged_reason"]
+    assert comp.summary["walking"]["not_walking"] == "impulse"
 
 
 def test_auto_says_which_engine_and_gives_the_same_metrics_csv_either_way(tmp_path):
