@@ -23,6 +23,7 @@ from feltool.events import changed_model, plant_for_cycle
 from feltool.fel import feedforward
 from feltool.ilc import OWN_RUNNER
 from feltool.ilc import cycle_runner as ilc_cycle_runner
+from feltool.ilc_walker import cycle_runner as walker_cycle_runner
 from feltool.simulate import ClosedLoop, CycleLog
 
 if TYPE_CHECKING:
@@ -242,6 +243,9 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
         run = _compiled_runner(exp)
         return lambda theta, q, v, plant, theta_m=None: run(theta, q, v)
     if exp.hybrid is not None:
+        if exp.config.walking is not None and exp.config.walking.physical and (
+                exp.config.learning.update in OWN_RUNNER or exp.config.disturbances is not None):
+            return walker_cycle_runner(exp, theta0, seed)  # ILC, baseline, disturbances
         return lambda theta, q, v, plant, theta_m=None: _hybrid_cycle(exp, theta, q, v, plant)
     loops: dict[int, ClosedLoop] = {}
 
@@ -330,20 +334,19 @@ def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop) -> Cy
     return _outcome(exp, log, Qd, theta_next)
 
 
-def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> CycleOutcome:
+def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics,
+                  loop=None, learn: bool = True) -> CycleOutcome:
     """One cycle of the hybrid loop (walkers, allocated motors), then one update (eq. 3.6);
-    the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d."""
+    the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d. ``loop``: the
+    loop to run (default ``exp.hybrid``; a disturbed or ILC copy); ``learn`` False: no update."""
     P, Pv, Pa = exp.primitives.desired(theta)
-    log = exp.hybrid.run_cycle(plant, q, v, P, Pv, Pa)
+    log = (loop or exp.hybrid).run_cycle(plant, q, v, P, Pv, Pa)
     theta_next = theta
-    if log.fall is None and exp.learner.n_learned:
+    if learn and log.fall is None and exp.learner.n_learned:
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
         J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs,
                                  samples=getattr(log, "phase_index", None))
-        E = _impact_masked(exp, log)
-        if exp.config.learning.error_estimate == "inverse_dynamics" and \
-                getattr(log, "inertial", None) is not None:
-            E = E + _impact_masked(exp, log, log.inertial)
+        E = error_torques(exp, log)
         A = getattr(log, "allocation", None)
         if exp.config.learning.error_space == "motors" and A is not None and len(A):
             theta_next = _motor_step(exp, theta, A, J, E)
@@ -355,6 +358,17 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
         out.contact = contact_metrics(log, exp)
         out.limit_hits = (np.zeros(len(exp.joints), int), _motor_hits(exp, log))
     return out
+
+
+def error_torques(exp: Experiment, log) -> np.ndarray:
+    """A walker's cycle's learning signal ``(n, nv)`` in generalized forces [N m]: the error
+    feedback, plus the inertial term with ``learning.error_estimate: inverse_dynamics``, the
+    samples of ``learning.impact_window_s`` left out."""
+    E = _impact_masked(exp, log)
+    if exp.config.learning.error_estimate == "inverse_dynamics" and \
+            getattr(log, "inertial", None) is not None:
+        E = E + _impact_masked(exp, log, log.inertial)
+    return E
 
 
 def _motor_step(exp: Experiment, theta: np.ndarray, A: np.ndarray, J: np.ndarray,
