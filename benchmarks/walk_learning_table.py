@@ -29,7 +29,7 @@ def main() -> None:
             fb = (f"{fmt(r['fb_first'])} → {fmt(r['fb_last'])}" if r["fb_first"] is not None
                   else "–")
             walked = "yes" if r["walked"] else f"no ({(r.get('reason') or '')[:60]})"
-            print(f"| {r['seed']} | {walked} | {fb} | {fmt(r['ratio'], '{:.3f}')} | "
+            print(f"| {r['seed']} | {walked} | {fb} | {fmt(r['ratio'], '{:.1e}')} | "
                   f"{fmt(r['torso_rms_last_rad'], '{:.2e}')} | "
                   f"{fmt(r['min_normal_force_mg'], '{:.2f}')} | "
                   f"{fmt(r['max_friction_ratio'], '{:.2f}')} | "

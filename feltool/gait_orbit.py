@@ -253,6 +253,8 @@ class GaitNotWalking(GaitDesignError):
         p = check.poincare
         if message is None and not check.walked:
             message = f"not walking after {check.steps} steps: {check.reason}"
+        elif message is None and p.get("reason"):  # fell while the orbit was looked for
+            message = f"walks {check.steps} steps, then {p['reason']}"
         elif message is None and not p.get("fixed_point_found"):
             message = ("walks, but the loop has no periodic orbit nearby (fixed-point residual "
                        f"{p.get('fixed_point_residual', np.nan):.2g})")

@@ -26,7 +26,7 @@ step in the coordinates the contact leaves free (pitch and joints, positions and
 the base follows from the stance foot), through the contact dynamics, the mechanical phase,
 the allocation and, where a touchdown falls inside the control step, the located touchdown and
 the impact. The step-to-sample map is the orbit's. Assumptions: the cycle's sample map, the
-touchdown's control step and the torque limits (no saturation) are those of the orbit; the
+touchdown's control step and the saturated motors (none) are those of the orbit; the
 cycle starts on the orbit (the coupling through the next cycle's start is left out, as on the
 arm). G and the factor of :math:`G^\top G + (w_u/w_e) I` are computed once per known model and
 reused every cycle and every seed.
@@ -75,49 +75,56 @@ def phase_error(exp: Experiment, log: WalkLog) -> np.ndarray:
 
 class OrbitStep:
     """One control step of the known model's closed loop, as :class:`~feltool.walking.
-    PhysicalLoop` runs it (unsaturated), from any state: the map linearized by
-    :func:`lifted_model`.
+    PhysicalLoop` runs it, in the coordinates the stance contact leaves free:
+    the map :func:`lifted_model` linearizes.
+
+    The state ``x`` is the pitch's and the joints' positions and velocities and, with
+    ``walking.phase: mechanical``, the phase's acceleration carried from one control step to
+    the next (zero after a touchdown); the base follows from the stance foot at the origin.
 
     Args:
         exp: The experiment (its ``hybrid`` loop, undisturbed).
         P, Pv, Pa: The cycle's forward trajectories ``(n, nv)``.
+        q0: A state whose base coordinates start the stance-foot completion.
     """
 
-    def __init__(self, exp: Experiment, P: np.ndarray, Pv: np.ndarray, Pa: np.ndarray):
+    def __init__(self, exp: Experiment, P: np.ndarray, Pv: np.ndarray, Pa: np.ndarray,
+                 q0: np.ndarray):
         self.exp, self.loop = exp, exp.hybrid
         self.walker = self.loop.walker
         self.P, self.Pv, self.Pa = P, Pv, Pa
         self.R = self.loop._referenced(P, Pv, Pa)
         nv = self.walker.walker.model.nv
         self.free = np.setdiff1d(np.arange(nv), self.walker.base_v[:2])  # pitch and joints
+        self.q0 = q0.copy()
 
-    def chart(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The free coordinates ``(2 n_f,)``: positions and velocities of pitch and joints."""
-        return np.concatenate([q[self.free], v[self.free]])
+    def chart(self, q: np.ndarray, v: np.ndarray, phase_acc: float) -> np.ndarray:
+        """``x`` from a full state and the phase's acceleration [1/s^2]."""
+        return np.concatenate([q[self.free], v[self.free], [phase_acc]])
 
-    def state(self, x: np.ndarray, q: np.ndarray, v: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray]:
-        """The full state with the free coordinates ``x``, the base put where the stance foot
-        stays at the origin (``q, v``: the other coordinates' starting values)."""
+    def state(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """The full state ``(q, v)`` and the phase's acceleration of ``x``."""
         nf = len(self.free)
-        q, v = q.copy(), v.copy()
-        q[self.free], v[self.free] = x[:nf], x[nf:]
+        q, v = self.q0.copy(), np.zeros_like(self.q0)
+        q[self.free], v[self.free] = x[:nf], x[nf:2 * nf]
         q, v, _ = self.walker.complete(q, v, np.zeros_like(v))
-        return q, v
+        return q, v, float(x[-1])
 
-    def __call__(self, q: np.ndarray, v: np.ndarray, du: np.ndarray, steps_before: int,
-                 label: int, sample: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-        """From ``(q, v)`` with ``du`` ``(m,)`` [N m] added to the motor command, in the
-        cycle's step ``steps_before`` (touchdowns so far) with stance ``label``; ``sample``: the
-        RMP sample of a phase that is not mechanical. Returns the state after the control step,
-        the motor error :math:`A\\epsilon` of the step ``(m,)`` (before any impact window) and
+    def __call__(self, x: np.ndarray, du: np.ndarray, steps_before: int, label: int,
+                 sample: int) -> tuple[np.ndarray, np.ndarray, bool]:
+        r"""From ``x`` with ``du`` ``(m,)`` [N m] added to the motor command, in the cycle's
+        step ``steps_before`` (touchdowns so far) with stance ``label``; ``sample``: the RMP
+        sample of a phase that is not mechanical. Returns ``x`` after the control step, the
+        motor error :math:`A\epsilon` of the step ``(m,)`` (before any impact window) and
         whether a touchdown happened in it."""
         L, W, exp = self.loop, self.walker, self.exp
-        Rq, Rv, Ra = self.R
-        if W.phase == "mechanical":
+        q, v, phase_acc = self.state(x)
+        mechanical = W.phase == "mechanical"
+        if mechanical:
             _, p, pv, pa, rp, rpv, rpa = L._mechanical(q, v, self.P, self.Pv, self.Pa,
-                                                       steps_before, label, self.R)
+                                                       steps_before, label, self.R, phase_acc)
         else:
+            Rq, Rv, Ra = self.R
             p, pv, pa = self.P[sample], self.Pv[sample], self.Pa[sample]
             rp, rpv, rpa = Rq[sample], Rv[sample], Ra[sample]
         qd, vd, ad = W.complete(*W.labelled(p, pv, pa, label))
@@ -126,23 +133,28 @@ class OrbitStep:
         r, rd = L.law.references(qr[None], vr[None])
         u_fb, _, u_err = L.law.terms(q, v, r[0], rd[0], L.error_rows)
         A = W.allocation_matrix(q)
-        tau = W.B @ (A @ (L.known.inverse(qd, vd, ad) + u_fb) + du)
+        u = A @ (L.known.inverse(qd, vd, ad) + u_fb) + du
+        if W.checks.torques == "saturate":
+            u = np.clip(u, -W.checks.effort, W.checks.effort)
+        tau = W.B @ u
+        c = W.contact
+        a = c.stance(q, v, tau, W.stance).a
         err = u_err
         if exp.config.learning.error_estimate == "inverse_dynamics":
-            c = W.contact
             M = pin.crba(c.model, c.data, q)
             M = np.triu(M) + np.triu(M, 1).T
-            err = err + M @ (ar - c.stance(q, v, tau, W.stance).a)
+            err = err + M @ (ar - a)
+        phase_acc = L._phase_acceleration(W.com_x(q, v, a)[2]) if mechanical else 0.0
         touched = False
         h = L.dt / L.substeps
         stats, force = [StepStats()], np.zeros((1, 2))
         for _ in range(L.substeps):
-            q, v, s = L._substep(W.contact, q, v, tau, h, stats, force, 0, W.phase == "clock")
+            q, v, s = L._substep(c, q, v, tau, h, stats, force, 0, W.phase == "clock")
             if s is not None:
-                touched = True
+                touched, phase_acc = True, 0.0
                 if W.phase != "clock":
                     break
-        return q, v, A @ err, touched
+        return self.chart(q, v, phase_acc), A @ err, touched
 
 
 def orbit_cycle(exp: Experiment) -> tuple[WalkLog, OrbitStep]:
@@ -156,7 +168,15 @@ def orbit_cycle(exp: Experiment) -> tuple[WalkLog, OrbitStep]:
 
         raise FeltoolError(f"ilc_norm_optimal: the walker's unperturbed cycle does not walk "
                            f"({log.fall}); there is no orbit to linearize about")
-    return log, OrbitStep(exp, P, Pv, Pa)
+    return log, OrbitStep(exp, P, Pv, Pa, q)
+
+
+def orbit_steps(log: WalkLog):
+    """``(k, (steps_before, label, sample))`` for each control step of a cycle."""
+    impacts = [k for k, _, _ in log.impacts]
+    for k in range(len(log.q)):
+        yield k, (sum(1 for i in impacts if i <= k), int(log.stance[k]),
+                  int(log.phase_index[k]))
 
 
 def lifted_model(exp: Experiment, eps: float = 1e-6) -> np.ndarray:
@@ -164,66 +184,55 @@ def lifted_model(exp: Experiment, eps: float = 1e-6) -> np.ndarray:
     sample-major, of the known model's walker about its orbit (module docstring), cached by the
     known model's settings.
 
-    Per control step k the forward differences of :class:`OrbitStep` give
+    Per control step k the central differences of :class:`OrbitStep` give
     :math:`x_{k+1} \approx A_k x_k + B_k \delta u_k` and :math:`e_k \approx C_k x_k + D_k
     \delta u_k` in the free coordinates; :math:`G_{kj} = C_k A_{k-1}\cdots A_{j+1} B_j` (j < k),
     :math:`G_{kk} = D_k`, then rows and columns are gathered by the RMP sample of each control
     step (columns summed: one sample's torque acts at every step that uses it; rows averaged,
-    as :func:`phase_error`). Where a difference crosses the touchdown's control step (the
-    perturbed step touches down when the orbit's does not, or the reverse), the backward
-    difference is used instead."""
+    as :func:`phase_error`). Where one side of a difference changes whether the control step
+    touches down, the other side's one-sided difference is used."""
     key = _fingerprint(exp)
     if key in _LIFTED:
         return _LIFTED[key]
     log, step = orbit_cycle(exp)
     n, n_k = exp.primitives.n_steps, len(log.q)
     m = step.walker.B.shape[1]
-    nf = len(step.free)
-    impacts = [k for k, _, _ in log.impacts]
     mask = _error_rows_kept(exp, log)
     G = np.zeros((n_k, m, n_k, m))
-    Z = np.zeros((2 * nf, n_k * m))  # d x_k / d u_j, propagated forward
-    for k in range(n_k):
-        before = sum(1 for i in impacts if i <= k)
-        args = (before, int(log.stance[k]), int(log.phase_index[k]))
-        x0 = step.chart(log.q[k], log.v[k])
-        q0, v0 = step.state(x0, log.q[k], log.v[k])
-        q1, v1, e0, touched = step(q0, v0, np.zeros(m), *args)
-        y0 = step.chart(q1, v1)
-        Ax, Cx = np.zeros((2 * nf, 2 * nf)), np.zeros((m, 2 * nf))
-        for i in range(2 * nf):
-            dx = np.zeros(2 * nf)
+    x = step.chart(log.q[0], log.v[0], 0.0)
+    Z = np.zeros((len(x), n_k * m))  # d x_k / d u_j, propagated forward
+    for k, args in orbit_steps(log):
+        y0, e0, touched = step(x, np.zeros(m), *args)
+        Ax, Cx = np.zeros((len(x), len(x))), np.zeros((m, len(x)))
+        for i in range(len(x)):
+            dx = np.zeros(len(x))
             dx[i] = eps
-            y, e = _difference(step, x0, dx, log.q[k], log.v[k], np.zeros(m), args, touched,
-                               y0, e0)
-            Ax[:, i], Cx[:, i] = y, e
-        B, D = np.zeros((2 * nf, m)), np.zeros((m, m))
+            Ax[:, i], Cx[:, i] = _difference(step, x, dx, np.zeros(m), args, touched, y0, e0)
+        B, D = np.zeros((len(x), m)), np.zeros((m, m))
         for i in range(m):
             du = np.zeros(m)
             du[i] = eps  # [N m]
-            y, e = _difference(step, x0, np.zeros(2 * nf), log.q[k], log.v[k], du, args,
-                               touched, y0, e0)
-            B[:, i], D[:, i] = y, e
+            B[:, i], D[:, i] = _difference(step, x, 0 * x, du, args, touched, y0, e0)
         if mask[k]:
             G[k, :, :k, :] = (Cx @ Z[:, :k * m]).reshape(m, k, m)
             G[k, :, k, :] = D
         Z[:, :k * m] = Ax @ Z[:, :k * m]
         Z[:, k * m:(k + 1) * m] = B
+        x = y0
     G = _by_sample(G, log.phase_index, n)
     _LIFTED[key] = G
     return G
 
 
-def _difference(step: OrbitStep, x0, dx, q_ref, v_ref, du, args, touched, y0, e0):
+def _difference(step: OrbitStep, x, dx, du, args, touched, y0, e0):
     """Central difference of the step map (state and error) along ``(dx, du)``; one-sided
     where one side's touchdown differs from the orbit's (zero if both do)."""
     scale = float(np.abs(dx).max() + np.abs(du).max())
     sides = []
     for sign in (1.0, -1.0):
-        q, v = step.state(x0 + sign * dx, q_ref, v_ref)
-        q1, v1, e, hit = step(q, v, sign * du, *args)
+        y, e, hit = step(x + sign * dx, sign * du, *args)
         if hit == touched:
-            sides.append((sign, step.chart(q1, v1), e))
+            sides.append((sign, y, e))
     if len(sides) == 2:
         (_, ya, ea), (_, yb, eb) = sides
         return (ya - yb) / (2 * scale), (ea - eb) / (2 * scale)
@@ -334,4 +343,4 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int) -> Callable:
 
 
 __all__ = ["OrbitStep", "cycle_runner", "lifted_model", "motor_error", "norm_optimal_factor",
-           "on_ground", "orbit_cycle", "phase_error"]
+           "on_ground", "orbit_cycle", "orbit_steps", "phase_error"]

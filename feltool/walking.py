@@ -224,13 +224,18 @@ class PhysicalWalker:
         BW = self.B.T @ W
         return np.linalg.solve(BW @ self.B, BW)
 
-    def com_x(self, q: np.ndarray, v: np.ndarray) -> tuple[float, float]:
+    def com_x(self, q: np.ndarray, v: np.ndarray, a: np.ndarray | None = None):
         """The centre of mass's horizontal position over the stance foot in [m] and its rate
-        in [m/s]."""
+        in [m/s]; with the accelerations ``a`` also its acceleration in [m/s^2] (the stance
+        foot held)."""
         c = self.contact
-        com = pin.centerOfMass(c.model, c.data, q, v)
+        if a is None:
+            com = pin.centerOfMass(c.model, c.data, q, v)
+        else:
+            com = pin.centerOfMass(c.model, c.data, q, v, a)
         foot, _ = c.foot_state(q, v, self.stance)
-        return float(com[0] - foot[0]), float(c.data.vcom[0][0])
+        out = (float(com[0] - foot[0]), float(c.data.vcom[0][0]))
+        return out if a is None else out + (float(c.data.acom[0][0]),)
 
     def fallen(self, q: np.ndarray, v: np.ndarray) -> str | None:
         return fall_reason(q, v, self.fall_row, self.fall_max)
@@ -332,6 +337,7 @@ class PhysicalLoop:
         steps, impacts = [StepStats()], []
         h = self.dt / self.substeps
         j, m, fall, t_step, kind = 0, 0, None, 0.0, None
+        phase_acc = 0.0  # the mechanical phase's acceleration [1/s], from the last step
         try:
             while m < n_max and not (clock and m >= n):
                 if not clock and len(impacts) >= W.steps_per_cycle:
@@ -348,7 +354,7 @@ class PhysicalLoop:
                 labels[k] = label
                 if W.phase == "mechanical":
                     jj, p, pv, pa, rp, rpv, rpa = self._mechanical(
-                        qm, vm, P, Pv, Pa, len(impacts), label, (Rq, Rv, Ra))
+                        qm, vm, P, Pv, Pa, len(impacts), label, (Rq, Rv, Ra), phase_acc)
                 else:
                     p, pv, pa, rp, rpv, rpa = P[jj], Pv[jj], Pa[jj], Rq[jj], Rv[jj], Ra[jj]
                 index[k] = jj
@@ -387,6 +393,9 @@ class PhysicalLoop:
                 if dist is not None:  # as measured: the known model's M at qm, a measured
                     M, a = dist.inertia(qm), dist.acceleration(a)
                 Inert[k] = M @ (ar - a)
+                if W.phase == "mechanical":  # the phase's acceleration for the next step,
+                    # from the (known model's) centre of mass's acceleration now
+                    phase_acc = self._phase_acceleration(W.com_x(qm, vm, a)[2])
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
                 ended = False
                 for i_sub in range(self.substeps):
@@ -397,6 +406,7 @@ class PhysicalLoop:
                         t_step = t_td
                         impacts.append((k + 1, True, steps[-1].length))
                         steps.append(StepStats())
+                        phase_acc = 0.0
                         if not clock:
                             # the phase restarts at the touchdown: step i of the cycle starts
                             # at sample i n / steps_per_cycle (the increment below adds 1), and
@@ -419,18 +429,23 @@ class PhysicalLoop:
                        impacts, fall, Urows[sl], Uerr[sl], steps, index[sl], Tau[sl], Force[sl],
                        hits, kind, Alloc[sl], Ref[sl], Inert[sl])
 
-    def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int, ref=None):
+    def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int, ref=None,
+                    phase_acc: float = 0.0):
         r"""The RMPs' values at the mechanical phase. The phase variable is the centre of
         mass's horizontal position over the stance foot, :math:`x` (the stance foot is at
-        x = 0), whose desired values over the step's samples, :math:`x_d(t_i)`, must increase:
-        the current :math:`x` gives the fractional sample :math:`t^*` with :math:`x_d(t^*) = x`
-        (held at the step's ends), the samples are interpolated linearly at :math:`t^*`, the
-        velocities scaled by :math:`r = \dot x / \dot x_d(t^*)` and the accelerations by
-        :math:`r^2` (the :math:`\dot r` term neglected). With ``ref`` (reference trajectories
+        x = 0), whose desired values over the step's samples, :math:`x_d(s_i)`, must increase:
+        the current :math:`x` gives the fractional sample time :math:`s` with
+        :math:`x_d(s) = x` (held at the step's ends), and the samples are interpolated
+        linearly at :math:`s`. The phase runs at :math:`\dot s = \dot x / \dot x_d(s)` and
+        accelerates at :math:`\ddot s = (\ddot x - \ddot x_d(s)\,\dot s^2) / \dot x_d(s)`,
+        so a trajectory :math:`p(s)` is :math:`p`, :math:`\dot p = p'\dot s`,
+        :math:`\ddot p = p''\dot s^2 + p'\ddot s` (``phase_acc``: :math:`\ddot s` in [1/s],
+        the last control step's, which needs that step's :math:`\ddot x`: the torque's; see
+        :meth:`_phase_acceleration`). On the reference's own motion :math:`\dot s = 1`,
+        :math:`\ddot s = 0`. With ``ref`` (reference trajectories
         ``(R, Rv, Ra)``) the phase follows the reference's centre of mass and the reference's
-        position, velocity and acceleration are returned too: ``(nearest sample, p, pv, pa, rp,
-        rpv, rpa)``;
-        else ``(nearest sample, p, pv, pa)``."""
+        position, velocity and acceleration are returned too: ``(nearest sample, p, pv, pa,
+        rp, rpv, rpa)``; else ``(nearest sample, p, pv, pa)``."""
         W = self.walker
         out_ref = ref is not None
         Ph, Phv, Pha = ref if out_ref else (P, Pv, Pa)
@@ -438,18 +453,19 @@ class PhysicalLoop:
         ns = n // W.steps_per_cycle
         i0 = (step % W.steps_per_cycle) * ns
         # keyed by content: a new cycle's arrays may reuse a freed array's id
-        key = (hash(Ph[i0:i0 + ns].tobytes()), hash(Phv[i0:i0 + ns].tobytes()), i0, label)
+        key = (hash(Ph[i0:i0 + ns].tobytes()), hash(Phv[i0:i0 + ns].tobytes()),
+               hash(Pha[i0:i0 + ns].tobytes()), i0, label)
         if self._ends.get("key") != key:
-            x, xv = np.empty(ns), np.empty(ns)
+            x, xv, xa = np.empty(ns), np.empty(ns), np.empty(ns)
             for i in range(ns):
-                qd, vd, _ = W.complete(*W.labelled(Ph[i0 + i], Phv[i0 + i], Pha[i0 + i], label))
-                x[i], xv[i] = W.com_x(qd, vd)
+                qd, vd, ad = W.complete(*W.labelled(Ph[i0 + i], Phv[i0 + i], Pha[i0 + i], label))
+                x[i], xv[i], xa[i] = W.com_x(qd, vd, ad)
             if np.any(np.diff(x) <= 0):
                 raise NotWalking("walking.phase: mechanical needs the desired centre of mass to "
                                  "move forward over the stance foot through the whole step",
                                  "phase")
-            self._ends = {"key": key, "x": x, "xv": xv}
-        x, xv = self._ends["x"], self._ends["xv"]
+            self._ends = {"key": key, "x": x, "xv": xv, "xa": xa}
+        x, xv, xa = self._ends["x"], self._ends["xv"], self._ends["xa"]
         xc, xc_rate = W.com_x(q, v)
         f = float(np.interp(xc, x, np.arange(ns)))
         a = min(int(f), ns - 2)
@@ -457,8 +473,17 @@ class PhysicalLoop:
         lerp = lambda X: (1 - w) * X[i0 + a] + w * X[i0 + a + 1]  # noqa: E731
         x_rate = (1 - w) * xv[a] + w * xv[a + 1]
         rate = xc_rate / x_rate if x_rate > 1e-9 else 1.0
-        out = (i0 + int(round(f)), lerp(P), rate * lerp(Pv), rate**2 * lerp(Pa))
-        return out + (lerp(Ph), rate * lerp(Phv), rate**2 * lerp(Pha)) if out_ref else out
+        self._phase = (rate, x_rate, (1 - w) * xa[a] + w * xa[a + 1])
+        out = (i0 + int(round(f)), lerp(P), rate * lerp(Pv),
+               rate**2 * lerp(Pa) + phase_acc * lerp(Pv))
+        return out + (lerp(Ph), rate * lerp(Phv),
+                      rate**2 * lerp(Pha) + phase_acc * lerp(Phv)) if out_ref else out
+
+    def _phase_acceleration(self, xc_acc: float) -> float:
+        r""":math:`\ddot s` [1/s] at the last :meth:`_mechanical` call's phase, for the centre
+        of mass's acceleration ``xc_acc`` [m/s^2] under that control step's torque."""
+        rate, x_rate, xa = self._phase
+        return (xc_acc - xa * rate**2) / x_rate if x_rate > 1e-9 else 0.0
 
     def jacobian_derivatives(self, log: WalkLog) -> tuple:
         """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with

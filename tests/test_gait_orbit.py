@@ -146,9 +146,9 @@ def test_a_design_that_does_not_walk_is_refused(tmp_path):
     walker, settings = walker_from_raw(raw, path)
     spec = gait_spec(raw, walker, settings, speed=0.8, torso=0.1, knots=24)
     design = gait_config(raw, walker, design_gait(walker, spec), spec, settings)
-    with pytest.raises(GaitNotWalking, match="not walking after [0-3] steps") as info:
-        close_on_orbit(design, path, build_experiment, steps=4)
-    assert not info.value.check.walked
+    with pytest.raises(GaitNotWalking, match="not walking") as info:
+        close_on_orbit(design, path, build_experiment, steps=20)
+    assert not info.value.check.stable
 
 
 def test_cli_verifies_closes_and_refuses(tmp_path, capsys):
@@ -170,9 +170,9 @@ def test_cli_verifies_closes_and_refuses(tmp_path, capsys):
     # a design that does not walk in the loop: exit 1, the reason, nothing written
     bad = tmp_path / "bad.yaml"
     assert main(["gait", str(unstabilized_three_link(tmp_path)), "--speed", "0.8", "--torso",
-                 "0.1", "--knots", "24", "--verify-steps", "4", "--out", str(bad),
-                 "--no-progress"]) == 1
+                 "0.1", "--knots", "24", "--out", str(bad), "--no-progress"]) == 1
     captured = capsys.readouterr()
-    assert "walked" in captured.out and "no, not walking" in captured.out
-    assert "feltool: error: not walking" in captured.err and "Traceback" not in captured.err
+    assert "walked" in captured.out
+    assert "feltool: error:" in captured.err and "not walking" in captured.err
+    assert "Traceback" not in captured.err
     assert not bad.exists()
