@@ -889,6 +889,11 @@ class ExperimentConfig(Strict):
         if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 2:
             return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle; it "
                                  "must be a whole number of at least 2")]
+        w = self.walking
+        if w is not None and w.physical and w.phase != "clock" and round(steps) % w.steps_per_cycle:
+            return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle do not "
+                                 f"split into walking.steps_per_cycle = {w.steps_per_cycle} "
+                                 "equal steps (each step's phase runs over its own share)")]
         bases = {"primitives.basis": self.primitives.basis}
         for name, jc in self.joints.items():
             if jc.primitive is not None and jc.primitive.basis is not None:

@@ -28,7 +28,7 @@ from feltool.memory import check_memory
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, samples_demo, sine_demo
-from feltool.robot import Robot, data_dir, load_robot, robot_spec
+from feltool.robot import Robot, data_dir, load_robot, robot_spec, with_angle_coordinates
 from feltool.seed import CycleOutcome, SeedResult, run_seed, stabilization_errors  # noqa: F401
 from feltool.simulate import ClosedLoop, Limits
 from feltool.walker_config import physical_loop, walker_model
@@ -169,8 +169,9 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
     if spec:
         try:
             dirs = raw.get("package_dirs") if isinstance(raw.get("package_dirs"), list) else []
-            robot = load_robot(spec, base_dir=source.parent if source else None,
-                               package_dirs=[str(d) for d in dirs], lenient=lenient)
+            robot = with_angle_coordinates(load_robot(
+                spec, base_dir=source.parent if source else None,
+                package_dirs=[str(d) for d in dirs], lenient=lenient))
         except RobotError as exc:
             problems.append(("robot", str(exc)))
     named = None
@@ -213,13 +214,8 @@ def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
             continue
         joint = robot.model.joints[robot.joint_id(name)]
         role = jc.get("role") if isinstance(jc, dict) else None
-        if joint.nv != 1:
+        if joint.nv != 1 and role != "locked":
             problems.append((f"joints.{name}", "feltool roles need a one-degree-of-freedom joint"))
-        elif joint.nq != 1 and role != "locked":
-            problems.append((f"joints.{name}", f"joint '{name}' is continuous (an unbounded "
-                             "revolute joint, stored by Pinocchio as cos/sin: two coordinates); "
-                             f"a '{role}' role needs a revolute or prismatic joint: give it "
-                             "type revolute with limits in the URDF, or role: locked"))
         target = jc.get("target") if isinstance(jc, dict) else None
         frame = target.get("frame") if isinstance(target, dict) else None
         if isinstance(frame, str) and not robot.model.existFrame(frame):

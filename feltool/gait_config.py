@@ -15,9 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 import yaml
 
-from feltool.errors import ConfigError, RobotError
+from feltool.errors import ConfigError, InputError, RobotError
 from feltool.gait_design import Gait, GaitSpec
 from feltool.robot import load_robot, robot_spec
 from feltool.walker_model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
@@ -117,6 +118,14 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
         duration = None
     elif duration is None and period is not None:
         duration = float(period) / settings["steps_per_cycle"]
+    if duration is not None:
+        n = duration * _rate_hz(raw)
+        if abs(n - round(n)) > 1e-6:
+            dt = 1.0 / _rate_hz(raw)
+            raise InputError(f"--duration (or period_s / walking.steps_per_cycle): a step of "
+                             f"{duration:g} s at sim.rate_hz {_rate_hz(raw):g} is {n:g} control "
+                             f"steps; give a whole number of them, e.g. {np.floor(n) * dt:g} or "
+                             f"{np.ceil(n) * dt:g} s")
     if not passive and speed is None and step_length is None:
         step_length = 0.35 * _hip_height(walker, stance)
     extra = {} if torso_weight is None else {"pitch_weight": torso_weight}
@@ -133,8 +142,6 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
 
 
 def _hip_height(walker: WalkerModel, foot: str) -> float:
-    import pinocchio as pin
-
     data = walker.model.createData()
     pin.framesForwardKinematics(walker.model, data, pin.neutral(walker.model))
     return float(-data.oMf[walker.feet[foot]].translation[2])
@@ -169,11 +176,19 @@ def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: Gait
         v = np.vstack([v[:-1], [gait.v_plus], (R @ v[1:].T).T])
         a = np.vstack([a[:-1], [R @ a[0]], (R @ a[1:].T).T])
     out = copy.deepcopy(raw)
-    out["period_s"] = _num(spc * gait.duration)
+    # a whole number of control steps per step (a passive gait's free duration is rounded: the
+    # knots' times stretch by less than half a control step)
+    dt = 1.0 / _rate_hz(raw)
+    out["period_s"] = _num(spc * round(gait.duration / dt) * dt)
     if spec.slope != 0.0:
         g = settings["gravity"]
         out["gravity"] = [_num(g * np.sin(spec.slope)), 0.0, _num(-g * np.cos(spec.slope))]
     joints = out.setdefault("joints", {})
+    _complete_joints(joints, walker, gait)
+    learning = out.setdefault("learning", {})
+    if not any(isinstance(jc, dict) and jc.get("role") == "stabilize" for jc in joints.values()) \
+            and learning.get("error", "stabilizing") == "stabilizing":
+        learning["error"] = "all_feedback"  # an underactuated walker: the thesis's choice
     for name, jc in joints.items():
         if name in BASE_JOINTS[:2] or not isinstance(jc, dict):
             continue
@@ -185,6 +200,36 @@ def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: Gait
         if jc.get("learn") is None or jc.get("role") == "track":
             jc["follow_demo"] = True  # the design itself, not a smooth RMP's fit of it
     return out
+
+
+def _rate_hz(raw: dict[str, Any]) -> float:
+    """The config's control rate in [Hz] (the schema's default when it gives none)."""
+    from feltool.config import SimConfig
+
+    sim = raw.get("sim") if isinstance(raw.get("sim"), dict) else {}
+    return float(sim.get("rate_hz", SimConfig.model_fields["rate_hz"].default))
+
+
+def _complete_joints(joints: dict[str, Any], walker: WalkerModel, gait: Gait,
+                     hz: float = 2.0) -> None:
+    r"""What the walker's loop needs besides the designed motion: every motor the config does
+    not name tracks its design, with gains of a critically damped ``hz`` [Hz] loop on its own
+    inertia at the step's start (:math:`k_p = I\omega^2`, :math:`k_d = 2I\omega`; edit them
+    in the written config); a stabilized torso (``base_pitch``) tracks its designed motion,
+    whose mean is its target (a constant target would fight the design's own torso motion)."""
+    model = walker.model
+    M = pin.crba(model, model.createData(), gait.q_pin[0])
+    w = 2.0 * np.pi * hz
+    for name in walker.robot.joint_names:
+        if name in walker.base or name in joints:
+            continue
+        inertia = float(M[walker.robot.v_index(name), walker.robot.v_index(name)])
+        joints[name] = {"role": "track",
+                        "gains": {"kp": _num(inertia * w**2), "kd": _num(2.0 * inertia * w)}}
+    torso = joints.get(BASE_JOINTS[2])
+    if isinstance(torso, dict) and torso.get("role") == "stabilize":
+        torso["role"] = "track"
+        torso.pop("target", None)
 
 
 def _num(x: float) -> float:

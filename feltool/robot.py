@@ -128,6 +128,42 @@ class Robot:
         return self._visual_model
 
 
+def with_angle_coordinates(robot: Robot) -> Robot:
+    """The robot with every continuous joint as a revolute joint without limits: one angle
+    coordinate in [rad] instead of Pinocchio's (cos, sin) pair, so that every one-degree-of-
+    freedom joint has ``nq == nv`` (feltool's trajectories, roles and walkers are in angles).
+    Joint and frame indices, names, placements, inertias and the effort and velocity limits are
+    kept; the robot itself is returned when it has no continuous joint."""
+    model = robot.model
+    kinds = {f"JointModelRUB{a}": getattr(pin, f"JointModelR{a}") for a in "XYZ"}
+    if not any(j.shortname() in kinds or j.shortname() == "JointModelRevoluteUnboundedUnaligned"
+               for j in model.joints[1:]):
+        return robot
+    out = pin.Model()
+    out.name, out.gravity = model.name, model.gravity
+    out.inertias[0] = model.inertias[0]  # a fixed root link's body
+    for j in range(1, model.njoints):
+        jm = model.joints[j]
+        q, v = slice(jm.idx_q, jm.idx_q + jm.nq), slice(jm.idx_v, jm.idx_v + jm.nv)
+        lo, hi = model.lowerPositionLimit[q], model.upperPositionLimit[q]
+        name = jm.shortname()
+        if name in kinds or name == "JointModelRevoluteUnboundedUnaligned":
+            data = jm.createData()
+            jm.calc(data, np.array([1.0, 0.0]))  # (cos, sin) of the angle 0
+            axis = np.asarray(data.S).reshape(6, -1)[3:, 0]
+            jm = kinds[name]() if name in kinds else pin.JointModelRevoluteUnaligned(axis)
+            lo, hi = np.array([-np.inf]), np.array([np.inf])
+        jid = out.addJoint(model.parents[j], jm, model.jointPlacements[j], model.names[j],
+                           model.effortLimit[v], model.velocityLimit[v], lo, hi)
+        out.appendBodyToJoint(jid, model.inertias[j], pin.SE3.Identity())
+    for frame in list(model.frames)[1:]:  # the universe frame is already there
+        out.addFrame(pin.Frame(frame.name, frame.parentJoint, frame.parentFrame,
+                               frame.placement, frame.type, frame.inertia), False)
+    return Robot(name=robot.name, model=out, source=robot.source, urdf_path=robot.urdf_path,
+                 package_dirs=robot.package_dirs, urdf_xml=robot.urdf_xml,
+                 warnings=list(robot.warnings))
+
+
 def robot_spec(value) -> tuple[str, bool]:
     """``(source, lenient)`` of a config's ``robot`` value: a string (lenient), or the mapping
     ``{source, lenient}``; ``("", True)`` when it is neither (the schema reports that)."""

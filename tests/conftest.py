@@ -60,3 +60,18 @@ def port_free(port: int) -> bool:
         except OSError:
             return False
     return True
+
+
+def other_walker_urdf() -> str:
+    """A torso-rooted five-link walker the project does not ship: the bundled one with other
+    masses (torso 18 kg, thighs 5 kg, shins 2.5 kg), 0.45 m segments and continuous joints."""
+    text = (ROOT / "robots" / "five_link_walker.urdf").read_text()
+    for old, new in (('name="five_link_walker"', 'name="other_walker"'),
+                     ('<mass value="12.0"/>', '<mass value="18.0"/>'),
+                     ('<mass value="6.8"/>', '<mass value="5.0"/>'),
+                     ('<mass value="3.2"/>', '<mass value="2.5"/>'),
+                     ('xyz="0 0 -0.4"', 'xyz="0 0 -0.45"'),
+                     ('type="revolute"', 'type="continuous"')):
+        assert old in text
+        text = text.replace(old, new)
+    return text

@@ -11,8 +11,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -22,6 +20,8 @@ from scipy.optimize import fsolve
 from feltool.gait_design import GROUPS, GaitDesignError, GaitSpec, design_gait
 from feltool.robot import load_robot
 from feltool.walker_model import FootSpec, build_walker_model
+
+from .conftest import other_walker_urdf
 
 # Goswami et al. 1996: leg mass m at a from the foot, b from the hip; hip mass m_H.
 M_LEG, M_HIP, A_LEG, B_LEG, G = 5.0, 10.0, 0.5, 0.5, 9.81
@@ -294,16 +294,7 @@ def test_a_walker_never_seen_gets_a_gait_from_its_config_alone(tmp_path):
     feet given as link + offset: the designer needs nothing but the config."""
     from feltool.gait_config import gait_spec, walker_from_raw
 
-    text = (Path(__file__).resolve().parents[1] / "robots" / "five_link_walker.urdf").read_text()
-    for old, new in (('name="five_link_walker"', 'name="other_walker"'),
-                     ('<mass value="12.0"/>', '<mass value="18.0"/>'),
-                     ('<mass value="6.8"/>', '<mass value="5.0"/>'),
-                     ('<mass value="3.2"/>', '<mass value="2.5"/>'),
-                     ('xyz="0 0 -0.4"', 'xyz="0 0 -0.45"'),
-                     ('type="revolute"', 'type="continuous"')):
-        assert old in text
-        text = text.replace(old, new)
-    (tmp_path / "other_walker.urdf").write_text(text)
+    (tmp_path / "other_walker.urdf").write_text(other_walker_urdf())
     raw = {"robot": "other_walker.urdf", "gravity": 9.81, "period_s": 0.55,
            "joints": {"base_pitch": {"role": "stabilize", "target": {"value": 0.05}}},
            "walking": {"feet": {"left": {"link": "left_shin", "offset": [0, 0, -0.45]},

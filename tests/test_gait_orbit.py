@@ -19,6 +19,8 @@ from feltool.gait_config import gait_config, gait_spec, walker_from_raw
 from feltool.gait_design import design_gait
 from feltool.gait_orbit import GaitNotWalking, close_on_orbit, verify_design
 
+from .conftest import other_walker_urdf
+
 COMPASS = Path("configs/gaits/compass_gait.yaml")
 
 
@@ -176,3 +178,37 @@ def test_cli_verifies_closes_and_refuses(tmp_path, capsys):
     assert "feltool: error:" in captured.err and "not walking" in captured.err
     assert "Traceback" not in captured.err
     assert not bad.exists()
+
+
+def test_a_walker_never_seen_gets_a_walking_gait_from_its_config_alone(tmp_path, capsys):
+    """A torso-rooted five-link walker with other masses and lengths and continuous joints, its
+    feet as link + offset, a config naming only its legs, feet and torso: `feltool gait` writes
+    a gait that walks in feltool's walker (motors completed with gains, continuous joints as
+    angles), and `feltool run` walks it with zero feedback."""
+    import yaml
+
+    from feltool.cli import main
+
+    (tmp_path / "other_walker.urdf").write_text(other_walker_urdf())
+    foot = {"offset": [0, 0, -0.45]}
+    raw = {"name": "other_walker", "robot": "other_walker.urdf", "gravity": 9.81,
+           "period_s": 1.2, "sim": {"rate_hz": 200},
+           "joints": {"base_pitch": {"role": "stabilize", "target": {"value": 0.05},
+                                     "gains": {"kp": 800.0, "kd": 150.0}}},
+           "walking": {"feet": {"left": {"link": "left_shin", **foot},
+                                "right": {"link": "right_shin", **foot}},
+                       "legs": [["left_hip", "right_hip"], ["left_knee", "right_knee"]],
+                       "friction": 0.8, "phase": "mechanical", "steps_per_cycle": 2}}
+    (tmp_path / "other.yaml").write_text(yaml.safe_dump(raw))
+    out = tmp_path / "gait.yaml"
+    assert main(["gait", str(tmp_path / "other.yaml"), "--speed", "0.7", "--verify-steps", "6",
+                 "--out", str(out), "--no-progress"]) == 0
+    assert "walked 6 steps: yes" in capsys.readouterr().out
+    config = yaml.safe_load(out.read_text())
+    for name in ("left_hip", "right_hip", "left_knee", "right_knee", "base_pitch"):
+        jc = config["joints"][name]
+        assert jc["role"] == "track" and jc["follow_demo"] and jc["demo"]["kind"] == "samples"
+    exp = build_experiment(config, out)
+    assert exp.robot.model.nq == exp.robot.model.nv  # continuous joints as angles
+    check = verify_design(exp, steps=4, poincare_analysis=False)
+    assert check.walked and check.feedback < 1e-5

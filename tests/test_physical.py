@@ -102,6 +102,58 @@ def test_a_locked_continuous_joint_is_held_at_its_posture():
         np.testing.assert_allclose(placements[0], placements[1], atol=1e-12)
 
 
+def test_a_continuous_joint_is_an_angle_in_an_experiment(tmp_path):
+    """A continuous elbow takes a role as one angle (no (cos, sin) pair): the standard arm with
+    it learns exactly as with the revolute elbow, whose limits the run never reaches."""
+    from feltool.experiment import build_experiment
+    from feltool.seed import run_seed
+
+    (tmp_path / "arm.urdf").write_text(ARM.replace('<joint name="elbow" type="revolute">',
+                                                   '<joint name="elbow" type="continuous">'))
+    raw = read_yaml(STANDARD)
+    raw["robot"] = "arm.urdf"
+    cont = build_experiment(raw, tmp_path / "arm.yaml")
+    rev = build_experiment(read_yaml(STANDARD), STANDARD)
+    assert cont.robot.model.nq == cont.robot.model.nv == 2
+    assert cont.robot.model.upperPositionLimit[1] == np.inf
+    rows = [run_seed(exp, 0, cycles=3).rows for exp in (cont, rev)]
+    for a, b in zip(*rows):
+        for key in ("fb_abs_mean_elbow", "fb_abs_mean_shoulder", "param_norm"):
+            assert a[key] == pytest.approx(b[key], rel=1e-12, abs=1e-12)
+
+
+def test_angle_coordinates_keep_a_walkers_dynamics(rng):
+    """The five-link walker with continuous joints, on its planar base: as angles (nq == nv)
+    its mass, inverse dynamics and frames equal those of Pinocchio's (cos, sin) model."""
+    from feltool.robot import with_angle_coordinates
+    from feltool.walker_model import with_planar_base
+
+    text = (ROOT / "robots" / "five_link_walker.urdf").read_text()
+    text = text.replace('type="revolute"', 'type="continuous"')
+    text = text.replace('<axis xyz="0 1 0"/>', '<axis xyz="0.6 0.8 0"/>', 1)  # one unaligned
+    cos_sin = load_urdf_string(text, name="walker")
+    angles = with_angle_coordinates(cos_sin)
+    for fixed in (cos_sin, angles):
+        assert sum(i.mass for i in fixed.model.inertias) == pytest.approx(32.0)  # RABBIT-like
+    a, b = with_planar_base(angles).model, with_planar_base(cos_sin).model
+    assert a.nq == a.nv == b.nv == 7 and b.nq == 11
+    da, db = a.createData(), b.createData()
+    for _ in range(5):
+        th, v, acc = rng.uniform(-1, 1, 7), rng.normal(size=7), rng.normal(size=7)
+        qb = pin.neutral(b)
+        for j in range(1, b.njoints):
+            jm = b.joints[j]
+            qb[jm.idx_q:jm.idx_q + jm.nq] = ([np.cos(th[jm.idx_v]), np.sin(th[jm.idx_v])]
+                                              if jm.nq == 2 else th[jm.idx_v])
+        np.testing.assert_allclose(pin.rnea(a, da, th, v, acc), pin.rnea(b, db, qb, v, acc),
+                                   atol=1e-10)
+        pin.framesForwardKinematics(a, da, th)
+        pin.framesForwardKinematics(b, db, qb)
+        for i in range(len(b.frames)):
+            assert a.frames[i].name == b.frames[i].name
+            np.testing.assert_allclose(da.oMf[i].homogeneous, db.oMf[i].homogeneous, atol=1e-12)
+
+
 def _arm_with_mesh(filename: str) -> str:
     return ARM.replace('<geometry><box size="0.12 0.12 0.12"/></geometry>',
                        f'<geometry><mesh filename="{filename}"/></geometry>', 1)
