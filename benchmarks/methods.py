@@ -81,7 +81,7 @@ PER_CONFIG = {("two_link_human_arm", "ilc_p"): ["ilc.cutoff_hz=10"],
               ("ur5_wrist_level", "ilc_p"): ["ilc.gain=0.3"],
               # gradient FEL on the walker: 1 / the largest eigenvalue of J_m'J_m (the torso
               # weights' Gauss-Newton matrix in motor torques) at the first cycle, 38-56 on
-              # seeds 0-2, so that the step is stable; the config's own update is gauss_newton
+              # seeds 0-2 (37-55), so that the step is stable; the config's own update is gauss_newton
               ("gaits/five_link_walker", "gradient"): ["learning.rates.weights=0.02"]}
 WALKER = {"five-link walker": "gaits/five_link_walker"}
 WALKER_CYCLES = 40  # the table's cycles (the config's 150 for time: 5 learners x 10 seeds)
