@@ -389,13 +389,14 @@ class PhysicalLoop:
                 # has not (yet) produced of the reference's acceleration (PhysicalLoop doc)
                 M = pin.crba(contact.model, contact.data, q)
                 M = np.triu(M) + np.triu(M, 1).T
-                a = contact.stance(q, v, tau, W.stance).a
-                if dist is not None:  # as measured: the known model's M at qm, a measured
-                    M, a = dist.inertia(qm), dist.acceleration(a)
+                a = a_phase = contact.stance(q, v, tau, W.stance).a
+                if dist is not None:  # as measured: the known model's M at qm, a measured;
+                    M, a = dist.inertia(qm), dist.acceleration(a)  # the phase's: predicted
+                    a_phase = W.contact.stance(qm, vm, W.B @ u, W.stance).a
                 Inert[k] = M @ (ar - a)
                 if W.phase == "mechanical":  # the phase's acceleration for the next step,
                     # from the (known model's) centre of mass's acceleration now
-                    phase_acc = self._phase_acceleration(W.com_x(qm, vm, a)[2])
+                    phase_acc = self._phase_acceleration(W.com_x(qm, vm, a_phase)[2])
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
                 ended = False
                 for i_sub in range(self.substeps):
