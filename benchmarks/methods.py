@@ -442,7 +442,8 @@ def walker_part(seeds: list[int], robust_seeds: int, jobs: int, out: Path, log,
         md.append("")
     out.mkdir(parents=True, exist_ok=True)
     (out / "methods_walker.json").write_text(json.dumps(
-        {"table": [{"robot": rb, "learner": lr, **r} for (rb, lr), r in results.items()],
+        {"table": [{"robot": rb, "learner": lr, **r, "curves": curves[(rb, lr)]}
+                   for (rb, lr), r in results.items()],
          "robustness": rob, "seeds": seeds, "wall_s": round(time.perf_counter() - t0, 1)},
         indent=1))
     (out / "methods_walker.md").write_text("\n".join(md))
@@ -456,14 +457,25 @@ def figures(curves: dict, rob: dict | None, robots: dict | None = None,
             convergence: str = "methods_feedback_convergence.png",
             scores: str = "methods_robustness.png",
             title: str = "robustness, standard arm") -> list[Path]:
+    written = [convergence_figure(curves, robots or ARMS, convergence)]
+    if rob is not None:
+        written.append(scores_figure(rob, scores, title))
+    return written
+
+
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     FIGURES.mkdir(parents=True, exist_ok=True)
-    written = []
-    robots = robots or ARMS
+    return plt
+
+
+def convergence_figure(curves: dict, robots: dict, name: str) -> Path:
+    """Mean |error feedback| per cycle, mean and min-max over seeds, one panel per robot."""
+    plt = _pyplot()
     fig, axes = plt.subplots(1, len(robots), figsize=(4.2 * len(robots) + 1.0, 3.4))
     for ax, arm in zip(np.atleast_1d(axes), robots):
         for learner in LEARNERS:
@@ -481,32 +493,35 @@ def figures(curves: dict, rob: dict | None, robots: dict | None = None,
     np.atleast_1d(axes)[0].set_ylabel("mean |error feedback| [N m]")
     np.atleast_1d(axes)[-1].legend(fontsize=8)
     fig.tight_layout()
-    path = FIGURES / convergence
+    path = FIGURES / name
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    written.append(path)
-    if rob is not None:
-        names = list(rob["scenarios"])
-        learners = list(rob["scores"])
-        S = np.array([[np.nan if rob["scores"][lr][n] is None else rob["scores"][lr][n]
-                       for n in names] for lr in learners])
-        fig, ax = plt.subplots(figsize=(7.5, 3.0))
-        im = ax.imshow(S, vmin=0, vmax=1, cmap="viridis", aspect="auto")
-        ax.set_xticks(range(len(names)), names, rotation=30)
-        ax.set_yticks(range(len(learners)), learners)
-        for i in range(len(learners)):
-            for j in range(len(names)):
-                ax.text(j, i, "n/a" if np.isnan(S[i, j]) else f"{S[i, j]:.2f}", ha="center",
-                        va="center", color="white" if not S[i, j] >= 0.6 else "black",
-                        fontsize=8)
-        fig.colorbar(im, ax=ax, label="score")
-        ax.set_title(title)
-        fig.tight_layout()
-        path = FIGURES / scores
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-    return written
+    return path
+
+
+def scores_figure(rob: dict, name: str, title: str) -> Path:
+    """The robustness scores as a learner x scenario map (n/a: not applicable)."""
+    plt = _pyplot()
+    names = list(rob["scenarios"])
+    learners = list(rob["scores"])
+    S = np.array([[np.nan if rob["scores"][lr][n] is None else rob["scores"][lr][n]
+                   for n in names] for lr in learners])
+    fig, ax = plt.subplots(figsize=(7.5, 3.0))
+    im = ax.imshow(S, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+    ax.set_xticks(range(len(names)), names, rotation=30)
+    ax.set_yticks(range(len(learners)), learners)
+    for i in range(len(learners)):
+        for j in range(len(names)):
+            na = np.isnan(S[i, j])
+            ax.text(j, i, "n/a" if na else f"{S[i, j]:.2f}", ha="center", va="center",
+                    color="black" if na or S[i, j] >= 0.6 else "white", fontsize=8)
+    fig.colorbar(im, ax=ax, label="score")
+    ax.set_title(title)
+    fig.tight_layout()
+    path = FIGURES / name
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:

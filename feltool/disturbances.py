@@ -19,7 +19,8 @@ states are logged apart (``CycleLog.q_true``) for tests. The known model
 
 Every draw comes from the loop's ``rng``, a numpy Generator that the cycle runner seeds from
 (seed, cycle) before each cycle (:func:`feltool.ilc.cycle_runner`), so a resumed run draws the
-same noise.
+same noise. A physical walker gets the same disturbances through :class:`WalkerDisturbance`, a
+hook of its loop (:func:`feltool.ilc_walker.cycle_runner`).
 """
 
 from __future__ import annotations

@@ -22,14 +22,17 @@ no control step used has no error. Cycles of different lengths so update the sam
 walker's cycle. :func:`lifted_model` linearizes the *known* model's closed loop about the
 walker's own periodic orbit (the demonstrations with their unperturbed parameters: what the
 learned feedforward should bring the walker back to) by central differences of each control
-step in the coordinates the contact leaves free (pitch and joints, positions and velocities;
-the base follows from the stance foot), through the contact dynamics, the mechanical phase,
-the allocation and, where a touchdown falls inside the control step, the located touchdown and
-the impact. The step-to-sample map is the orbit's. Assumptions: the cycle's sample map, the
-touchdown's control step and the saturated motors (none) are those of the orbit; the
-cycle starts on the orbit (the coupling through the next cycle's start is left out, as on the
-arm). G and the factor of :math:`G^\top G + (w_u/w_e) I` are computed once per known model and
-reused every cycle and every seed.
+step (:class:`OrbitStep`) in the coordinates the contact leaves free (pitch and joints,
+positions and velocities, and the mechanical phase's acceleration carried to the next step;
+the base follows from the stance foot), through the contact dynamics, the mechanical phase, the
+allocation, the saturation and, where a touchdown falls inside the control step, the located
+touchdown and the impact. Assumptions: the cycle's step-to-sample map, the touchdowns' control
+steps and the saturated motors (none) are those of the orbit; the cycle starts on the orbit
+(the coupling through the next cycle's start is left out, as on the arm); where the orbit sits
+on a kink of the step map (the mechanical phase interpolates the reference linearly between
+samples, and the orbit's control steps fall on the samples) G has the mean of the one-sided
+slopes. G and the factor of :math:`G^\top G + (w_u/w_e) I` are computed once per known model
+and reused every cycle and every seed (the last one kept: ``(n m)^2`` numbers each).
 """
 
 from __future__ import annotations
@@ -50,8 +53,8 @@ if TYPE_CHECKING:
     from feltool.experiment import Experiment
     from feltool.walking import WalkLog
 
-_LIFTED: dict[str, np.ndarray] = {}  # lifted models by known-model fingerprint
-_FACTORS: dict[tuple, tuple] = {}  # their Cholesky factors by (fingerprint, w_e, w_u)
+_LIFTED: dict[str, np.ndarray] = {}  # the last lifted model, by known-model fingerprint
+_FACTORS: dict[tuple, tuple] = {}  # its Cholesky factor, by (fingerprint, w_e, w_u)
 
 
 def motor_error(exp: Experiment, log: WalkLog) -> np.ndarray:
@@ -220,6 +223,7 @@ def lifted_model(exp: Experiment, eps: float = 1e-6) -> np.ndarray:
         Z[:, k * m:(k + 1) * m] = B
         x = y0
     G = _by_sample(G, log.phase_index, n)
+    _LIFTED.clear()
     _LIFTED[key] = G
     return G
 

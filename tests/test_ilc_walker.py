@@ -116,7 +116,7 @@ def test_lifted_model_of_the_walker_agrees_with_differences_of_the_loop():
         g = G[:, i * m + a]
         assert np.linalg.norm(column - g) < 5e-3 * np.linalg.norm(g)
         # the dynamic part, the torque's effect on later samples (~1 % of the feedthrough):
-        # its direction and size (measured: cosine 0.87-0.9999, relative error 0.01-0.49; the
+        # its direction and size (measured: cosine 0.90-0.9999, relative error 0.01-0.43; the
         # largest at the cycle's last sample, where the mechanical phase's linear interpolation
         # of the reference has a kink on the orbit: G takes the mean of its one-sided slopes)
         c, gl = column[(i + 1) * m:], g[(i + 1) * m:]
