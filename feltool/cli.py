@@ -309,9 +309,13 @@ def cmd_check(args: argparse.Namespace) -> int:
     if problems:
         raise ConfigError(problems, str(exp.source) if exp.source else None)
     print(f"{exp.source}: ok - robot {exp.robot.name} ({len(exp.joints)} moving joints: "
-          f"{', '.join(exp.joints)}), {cfg.steps_per_cycle} steps per cycle, learned: "
+          f"{', '.join(exp.joints)}), {cfg.period_s * cfg.sim.rate_hz:g} steps per cycle, "
+          f"phase {cfg.primitives.phase}, learned: "
           f"{', '.join(exp.learned_joints) or 'nothing'}, error signal: "
           f"{', '.join(exp.error_joints)}, {len(cfg.seed_list)} seeds")
+    if exp.demo_fit_rms:
+        print("  demo fit (RMS of the RMP's limit cycle minus the demonstration): "
+              + ", ".join(f"{j} {e:.3g} rad" for j, e in exp.demo_fit_rms.items()))
     return 0
 
 

@@ -144,6 +144,55 @@ class SimConfig(Strict):
         "torque as well, or ignore them. An effort of 0 in the URDF means no limit.")
 
 
+class ExternalSignal(Strict):
+    """A periodic input from outside the robot: y(t) = mean + amplitude sin(2 pi f t + phase) +
+    sum_k A_k sin(2 pi k f t + phi_k), k = 2, 3, ..., t from the start of the run."""
+
+    frequency_hz: PositiveFloat = Field(description="Its frequency f in [Hz].")
+    amplitude: FiniteFloat = Field(1.0, description="Amplitude [input unit].")
+    mean: FiniteFloat = Field(0.0, description="Mean [input unit].")
+    phase: FiniteFloat = Field(0.0, description="Phase at t = 0 [rad].")
+    harmonics: list[tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=list,
+        max_length=MAX_HARMONICS, description="Higher harmonics k = 2, 3, ...: [amplitude, "
+        f"phase in [rad]] each; at most {MAX_HARMONICS}.")
+
+
+class OscillatorInput(Strict):
+    """The periodic signal the adaptive oscillator entrains to: exactly one of these."""
+
+    joint: str | None = Field(None, description="A configured joint's measured angle [rad] "
+                              "(or position [m]).")
+    frame: str | None = Field(None, description="A URDF link/frame's measured height (world "
+                              "z) [m].")
+    external: ExternalSignal | None = Field(None, description="A signal from outside the "
+                                            "robot.")
+
+    @model_validator(mode="after")
+    def _one(self) -> OscillatorInput:
+        given = [k for k in ("joint", "frame", "external") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of joint, frame or external"
+                             + (f" (got {', '.join(given)})" if given else ""))
+        return self
+
+
+class OscillatorConfig(Strict):
+    """An adaptive-frequency oscillator (Righetti, Buchli & Ijspeert 2006) coupled through the
+    error of an adaptive Fourier series of its input (Gams et al. 2009): phi' = Omega - K e sin
+    phi, Omega' = -K e sin phi, e = y - sum_c (a_c cos c phi + b_c sin c phi), a_c' = eta e cos
+    c phi, b_c' = eta e sin c phi (docs/theory.md)."""
+
+    input: OscillatorInput = Field(description="The signal y it entrains to.")
+    coupling: PositiveFloat = Field(10.0, le=1.0e4, description="Coupling K in [1/(s input "
+        "unit)]: larger locks faster; K times the input's amplitude of about 10 locks a sine "
+        "within 10 periods (docs/theory.md).")
+    learning_rate: PositiveFloat = Field(2.0, le=1.0e4, description="Learning rate eta of the "
+        "Fourier series in [1/s]; about K / 5 (much larger makes it learn the input before the "
+        "frequency has locked).")
+    harmonics: int = Field(10, ge=0, le=100, description="Highest harmonic H of the series "
+                           "(0 to 100).")
+
+
 class PrimitiveConfig(Strict):
     """Parameters of a rhythmic movement primitive (eq. 2.1-2.3)."""
 
@@ -158,6 +207,23 @@ class PrimitiveConfig(Strict):
                                         f"Mises basis [-]; default N / 2; at most {MAX_WIDTH:g}.")
     amplitude: PositiveFloat = Field(1.0, le=MAX_AMPLITUDE, description="Amplitude factor r of "
                                      f"the forcing term [-]; at most {MAX_AMPLITUDE:g}.")
+    phase: Literal["clock", "mechanical", "adaptive"] = Field("clock", description="The phase "
+        "every RMP shares (one learning cycle is one revolution of it, however many steps that "
+        "takes): clock = integrated at 2 pi / period_s (changed smoothly by period_s events); "
+        "mechanical = a physical walker's phase, following its centre of mass over the stance "
+        "foot (the same setting as walking.phase: mechanical; either one sets both); adaptive "
+        "= an adaptive-frequency oscillator entrained to the signal of `oscillator`, starting "
+        "at 2 pi / period_s (docs/theory.md).")
+    oscillator: OscillatorConfig | None = Field(None, description="phase: adaptive: the "
+        "adaptive-frequency oscillator and the signal it follows.")
+
+    @model_validator(mode="after")
+    def _oscillator(self) -> PrimitiveConfig:
+        if self.phase == "adaptive" and self.oscillator is None:
+            raise ValueError("phase: adaptive needs an 'oscillator' block (its input signal)")
+        if self.phase != "adaptive" and self.oscillator is not None:
+            raise ValueError("'oscillator' is only for phase: adaptive")
+        return self
 
 
 class PrimitiveOverride(Strict):
@@ -217,11 +283,41 @@ class SamplesDemo(Strict):
         return self
 
 
+class PositionsDemo(Strict):
+    """A demonstration given by positions only, at any rate: equally spaced samples that span
+    ``periods`` whole periods (the sample after the last would be the first again), from a
+    list or a CSV column. It is resampled onto the phase by its Fourier series (the
+    trigonometric interpolant, by the FFT), its velocities and accelerations come from spectral
+    differentiation, and it is fitted over the whole phase (eq. 2.4). The fit error (RMS over
+    the cycle of the RMP's limit cycle minus the demonstration) is reported by feltool check
+    and in summary.json (demo_fit_rms_rad)."""
+
+    kind: Literal["positions"] = Field(description="Demonstration kind.")
+    q: list[Angle] | None = Field(None, min_length=3, max_length=MAX_DEMO_SAMPLES,
+                                  description="Positions in [rad] (or [m]); within "
+                                  f"+-{MAX_ANGLE:g}, at most {MAX_DEMO_SAMPLES} samples.")
+    csv: str | None = Field(None, description="A CSV file with a header row (relative to the "
+                            "config file), read instead of q.")
+    column: str | None = Field(None, description="The CSV column (its header) to read.")
+    periods: int = Field(1, ge=1, le=10_000, description="Whole periods the samples span.")
+
+    @model_validator(mode="after")
+    def _source(self) -> PositionsDemo:
+        if (self.q is None) == (self.csv is None):
+            raise ValueError("give either 'q' or 'csv' (with 'column')")
+        if self.csv is not None and self.column is None:
+            raise ValueError("'csv' needs 'column' (the header of the column to read)")
+        if self.q is not None and len(self.q) <= 2 * self.periods:
+            raise ValueError(f"{len(self.q)} samples cannot resolve one harmonic over "
+                             f"{self.periods} period(s); give more than {2 * self.periods}")
+        return self
+
+
 def _demo_kind(value: Any) -> str:
     """Which demo model validates ``value``: its ``kind`` (sine when missing or unknown, so that
     the error names the sine demo's fields as before)."""
     kind = value.get("kind") if isinstance(value, dict) else getattr(value, "kind", None)
-    return "samples" if kind == "samples" else "sine"
+    return kind if kind in ("samples", "positions") else "sine"
 
 
 class Gains(Strict):
@@ -300,9 +396,11 @@ class JointConfig(Strict):
     link_angle: list[str] | None = Field(None, min_length=1, description="track only: the "
         "tracked quantity is this link's absolute angle, the sum of these joints' angles "
         "(reference: the same sum of the desired joint angles); default the joint's own angle.")
-    demo: Annotated[Annotated[SineDemo, Tag("sine")] | Annotated[SamplesDemo, Tag("samples")],
+    demo: Annotated[Annotated[SineDemo, Tag("sine")] | Annotated[SamplesDemo, Tag("samples")]
+                    | Annotated[PositionsDemo, Tag("positions")],
                     Discriminator(_demo_kind)] | None = Field(
-        None, description="Demonstration fitted into the RMP (eq. 2.4): kind sine or samples.")
+        None, description="Demonstration fitted into the RMP (eq. 2.4): kind sine, samples or "
+        "positions.")
     gains: Gains | None = Field(None, description="Feedback gains (track and stabilize).")
     target: Target | None = Field(None, description="Stabilized quantity (stabilize only).")
     learn: LearnConfig | None = Field(None, description="Learn this joint's RMP by FEL.")
@@ -763,29 +861,58 @@ class ActuationConfig(Strict):
 
 
 class EventConfig(Strict):
-    """A change of the world at the start of a learning cycle; the known model stays as it was,
-    only the simulated plant changes, so FEL has to adapt."""
+    """A change at the start of a learning cycle: of the world (``kind``: the simulated plant
+    changes, the known model stays as it was, so FEL has to adapt), or of the motion (no
+    ``kind``; period_s, amplitude and goal, alone or together), applied without a jump in the
+    desired positions and velocities while FEL goes on learning."""
 
     cycle: int = Field(ge=1, le=MAX_CYCLES, description="Learning cycle at whose start the "
                        "change happens.")
-    kind: Literal["slope", "payload", "mass"] = Field(description="slope: tilt gravity (the "
-        "ground) by `angle` about the world's y axis; payload: add a point mass `mass` at "
-        "`frame`; mass: set the mass of the body moved by the joint of `link` to `mass` "
-        "(its inertia scaled alike).")
+    kind: Literal["slope", "payload", "mass"] | None = Field(None, description="A change of "
+        "the world: slope: tilt gravity (the ground) by `angle` about the world's y axis; "
+        "payload: add a point mass `mass` at `frame`; mass: set the mass of the body moved by "
+        "the joint of `link` to `mass` (its inertia scaled alike). None: a change of the motion.")
     angle: Angle | None = Field(None, description="Slope angle in [rad] (kind slope); "
                                       "positive tilts gravity towards +x (downhill ahead).")
     mass: NonNegFloat | None = Field(None, le=MAX_MASS, description="Mass in [kg] (payload, "
                                      f"mass); at most {MAX_MASS:g}.")
     frame: str | None = Field(None, description="URDF link/frame carrying the payload.")
     link: str | None = Field(None, description="URDF link whose mass is set (kind mass).")
+    period_s: PositiveFloat | None = Field(None, le=MAX_PERIOD_S, description="The motion's "
+        "new period in [s]: the phase's frequency moves to 2 pi / period_s smoothly (C1 in "
+        "time), so q_d and its velocity stay continuous; the RMPs, functions of the phase, "
+        "keep their learned shape (phase: clock).")
+    transition_cycles: PositiveFloat = Field(1.0, le=1000, description="With period_s: the "
+        "revolutions of the phase the change of speed takes [-].")
+    amplitude: dict[str, PositiveFloat] | None = Field(None, description="Per joint: its RMP's "
+        "amplitude factor r (eq. 2.2) from now on [-]. The forcing term is r psi^T w, so the "
+        "weights are scaled by r_new / r_old; the RMP's state carries on from where it was and "
+        "settles on the new limit cycle (no jump in q_d, qdot_d).")
+    goal: dict[str, Angle] | None = Field(None, description="Per joint: its RMP's goal g (the "
+        "motion's centre) from now on, in [rad] (a learned goal is set and learned on from "
+        "there); the state carries on as with amplitude.")
 
     @model_validator(mode="after")
     def _fields(self) -> EventConfig:
+        motion = [f for f in ("period_s", "amplitude", "goal") if getattr(self, f) is not None]
+        if self.kind is None:
+            if not motion:
+                raise ValueError("an event changes the world (kind: slope, payload or mass) or "
+                                 "the motion (period_s, amplitude, goal); give one")
+            return self
+        if motion:
+            raise ValueError(f"'{', '.join(motion)}' change the motion; give them in an event "
+                             f"of their own, without kind '{self.kind}'")
         need = {"slope": ["angle"], "payload": ["mass", "frame"], "mass": ["mass", "link"]}
         missing = [f for f in need[self.kind] if getattr(self, f) is None]
         if missing:
             raise ValueError(f"a '{self.kind}' event needs " + ", ".join(missing))
         return self
+
+    @property
+    def changes_world(self) -> bool:
+        """Whether the event changes the simulated plant (else the motion)."""
+        return self.kind is not None
 
 
 class SweepConfig(Strict):
@@ -838,8 +965,10 @@ class ExperimentConfig(Strict):
         "Known models: Pinocchio; CasADi symbolic expressions built from the same model; or "
         "compiled: a whole learning cycle generated to C and compiled (cached on disk).")
     period_s: PositiveFloat = Field(le=MAX_PERIOD_S, description="Period T of the rhythmic "
-        f"motion in [s]; at most {MAX_PERIOD_S:g}, and period_s * sim.rate_hz (the samples per "
-        f"cycle) a whole number from 2 to {MAX_STEPS_PER_CYCLE}.")
+        f"motion in [s] (the phase's starting frequency is 2 pi / T); at most "
+        f"{MAX_PERIOD_S:g}, and period_s * sim.rate_hz (the samples per cycle, any number: a "
+        "cycle is one revolution of the phase) from 2 to "
+        f"{MAX_STEPS_PER_CYCLE}.")
     sim: SimConfig = Field(default_factory=SimConfig, description="Simulation settings.")
     primitives: PrimitiveConfig = Field(default_factory=PrimitiveConfig,
                                         description="Defaults for every joint's RMP.")
@@ -884,27 +1013,74 @@ class ExperimentConfig(Strict):
                                  "each seed runs once (a repeat would be the same run again)")
         return s
 
+    @model_validator(mode="before")
+    @classmethod
+    def _one_mechanical_phase(cls, data: Any) -> Any:
+        """``primitives.phase: mechanical`` and ``walking.phase: mechanical`` are one setting:
+        either one given alone sets the other."""
+        if not isinstance(data, dict):
+            return data
+        prims, walking = data.get("primitives"), data.get("walking")
+        if not isinstance(walking, dict) or (prims is not None and not isinstance(prims, dict)):
+            return data
+        prims = dict(prims or {})
+        if "phase" not in prims and walking.get("phase") == "mechanical":
+            return {**data, "primitives": {**prims, "phase": "mechanical"}}
+        if "phase" not in walking and prims.get("phase") == "mechanical":
+            return {**data, "walking": {**walking, "phase": "mechanical"}}
+        return data
+
     def problems(self) -> list[tuple[str, str]]:
         """Checks across fields, as ``(yaml_path, message)`` pairs."""
         steps = self.period_s * self.sim.rate_hz
         if steps > MAX_STEPS_PER_CYCLE:
             return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle; at "
                                  f"most {MAX_STEPS_PER_CYCLE} (feltool's limit)")]
-        if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 2:
-            return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle; it "
-                                 "must be a whole number of at least 2")]
+        if steps < 2:
+            return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle; at "
+                                 "least 2")]
         w = self.walking
-        if w is not None and w.physical and w.phase != "clock" and round(steps) % w.steps_per_cycle:
-            return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle do not "
-                                 f"split into walking.steps_per_cycle = {w.steps_per_cycle} "
+        if w is not None and w.physical and w.phase != "clock" and (
+                not self.whole_period or round(steps) % w.steps_per_cycle):
+            return [("period_s", f"period_s * sim.rate_hz = {steps:g} samples per cycle: a "
+                                 "physical walker's cycle must be a whole number of them that "
+                                 f"splits into walking.steps_per_cycle = {w.steps_per_cycle} "
                                  "equal steps (each step's phase runs over its own share)")]
         bases = {"primitives.basis": self.primitives.basis}
         for name, jc in self.joints.items():
             if jc.primitive is not None and jc.primitive.basis is not None:
                 bases[f"joints.{name}.primitive.basis"] = jc.primitive.basis
-        return [(where, f"{basis} basis functions but only {round(steps)} samples per cycle "
-                        "(period_s * sim.rate_hz); use at most that many")
-                for where, basis in bases.items() if basis > round(steps)]
+        low = int(steps)
+        out = [(where, f"{basis} basis functions but only {low} samples per cycle "
+                       "(period_s * sim.rate_hz); use at most that many")
+               for where, basis in bases.items() if basis > low]
+        return out + self._phase_problems()
+
+    def _phase_problems(self) -> list[tuple[str, str]]:
+        phase, w = self.primitives.phase, self.walking
+        if phase == "mechanical" and (w is None or not w.physical):
+            return [("primitives.phase", "mechanical is the physical walker's phase (it follows "
+                                         "the centre of mass over the stance foot): it needs a "
+                                         "walking block with feet")]
+        if w is not None and w.physical and (phase == "mechanical") != (w.phase == "mechanical"):
+            return [("primitives.phase", f"primitives.phase: {phase} and walking.phase: "
+                                         f"{w.phase} disagree; mechanical is one setting for "
+                                         "both (give it in one place)")]
+        if w is not None and phase == "adaptive":
+            return [("primitives.phase", "adaptive is not available for walkers yet (their "
+                                         "phase is clock, touchdown or mechanical)")]
+        return []
+
+    @property
+    def whole_period(self) -> bool:
+        """Whether a period is a whole number of control steps (the thesis's cycle)."""
+        steps = self.period_s * self.sim.rate_hz
+        return abs(steps - round(steps)) <= 1e-9 * max(1.0, steps)
+
+    @property
+    def motion_events(self) -> list[tuple[int, EventConfig]]:
+        """``(index, event)`` of the events that change the motion (period, amplitude, goal)."""
+        return [(i, ev) for i, ev in enumerate(self.events) if not ev.changes_world]
 
     @property
     def robot_source(self) -> str:
@@ -922,6 +1098,7 @@ class ExperimentConfig(Strict):
 
     @property
     def steps_per_cycle(self) -> int:
+        """Steps of a cycle at the nominal period (rounded)."""
         return int(round(self.period_s * self.sim.rate_hz))
 
 
@@ -1030,7 +1207,7 @@ def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
         loc = err["loc"]
         # a demo's kind is a tag of its (discriminated) union, not a YAML key: drop it
         loc = tuple(x for i, x in enumerate(loc)
-                    if not (i and loc[i - 1] == "demo" and x in ("sine", "samples")))
+                    if not (i and loc[i - 1] == "demo" and x in ("sine", "samples", "positions")))
         msg = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             msg = "unknown field (check the spelling; see docs/configuration.md)"
@@ -1087,6 +1264,10 @@ def config_to_yaml(cfg: ExperimentConfig, base_dir: Path | None = None) -> str:
             else:
                 data["robot"] = robot
         data["package_dirs"] = [str((Path(base_dir) / d).resolve()) for d in data["package_dirs"]]
+        for jc in data["joints"].values():
+            demo = jc.get("demo") or {}
+            if demo.get("csv") and not Path(demo["csv"]).expanduser().is_absolute():
+                demo["csv"] = str((Path(base_dir) / demo["csv"]).resolve())
         plant = data.get("plant")
         if isinstance(plant, dict) and isinstance(plant.get("robot"), str) and \
                 plant["robot"].endswith(".urdf") and not Path(plant["robot"]).is_absolute():

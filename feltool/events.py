@@ -1,10 +1,11 @@
 """Changes of the world during a run (adaptation experiments).
 
-An event changes only the simulated plant; the known model that computes the feedforward (and
+A world event changes only the simulated plant; the known model that computes the feedforward (and
 the allocation) stays as it was, so the feedback rises at the event and FEL has to bring it back
 down. Events apply to any robot: a ground slope (gravity rotated about the world's y axis; for a
 walker whose stance foot is pinned this is the slope under the foot), a payload (a point mass at a
-frame), or a link's new mass.
+frame), or a link's new mass. Events that change the motion (period, amplitude, goal) are
+applied by :mod:`feltool.motion`.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from feltool.errors import ConfigError
 
 
 def check_events(model: pin.Model, events: list[EventConfig], source: str | None = None) -> None:
-    """Every frame and link an event names exists in the (reduced) model."""
+    """Every frame and link an event names exists in the (reduced) model (the joints a motion
+    event names are checked with the primitives, :mod:`feltool.motion`)."""
     problems = []
     for i, ev in enumerate(events):
         for key in ("frame", "link"):
@@ -33,6 +35,8 @@ def changed_model(model: pin.Model, events: list[EventConfig]) -> pin.Model:
     """A copy of ``model`` with ``events`` applied, in order."""
     plant = pin.Model(model)
     for ev in events:
+        if not ev.changes_world:
+            continue
         if ev.kind == "slope":
             c, s = np.cos(ev.angle), np.sin(ev.angle)
             # Rotation about y by -angle: gravity (0, 0, -g) tilts towards +x (downhill ahead).
@@ -58,8 +62,9 @@ def changed_model(model: pin.Model, events: list[EventConfig]) -> pin.Model:
 
 def plant_for_cycle(model: pin.Model, events: list[EventConfig], cycle: int,
                     backend: str = "pinocchio") -> Dynamics | None:
-    """The plant to simulate from ``cycle`` on if an event starts at ``cycle``, else None."""
-    if not any(ev.cycle == cycle for ev in events):
+    """The plant to simulate from ``cycle`` on if an event changes the world at ``cycle``, else
+    None."""
+    if not any(ev.cycle == cycle and ev.changes_world for ev in events):
         return None
     return make_dynamics(changed_model(model, [ev for ev in events if ev.cycle <= cycle]), backend)
 

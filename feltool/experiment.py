@@ -7,6 +7,7 @@ robot, primitives, feedback laws and learner can be inspected before anything is
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -14,8 +15,17 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from feltool import spectral
+from feltool.bounds import MAX_ANGLE
 from feltool.checks import target_problems
-from feltool.config import ExperimentConfig, JointConfig, apply_overrides, parse_config, read_yaml
+from feltool.config import (
+    MAX_DEMO_SAMPLES,
+    ExperimentConfig,
+    JointConfig,
+    apply_overrides,
+    parse_config,
+    read_yaml,
+)
 from feltool.control import FeedbackLaw, FrameAngle
 from feltool.disturbances import problems as disturbance_problems
 from feltool.dynamics import Dynamics, make_dynamics
@@ -23,9 +33,11 @@ from feltool.errors import ConfigError, FeltoolError, RobotError
 from feltool.events import check_events
 from feltool.fel import FeedbackErrorLearner
 from feltool.hybrid import Allocation, HybridLoop, Walker
+from feltool.ilc import OWN_RUNNER
 from feltool.ilc import problems as ilc_problems
 from feltool.memory import check_memory
 from feltool.model_fel import ModelLearner, PhaseBasisFeatures, RegressorFeatures
+from feltool.motion import motion_problems, refuse_varying_phase, varying_phase
 from feltool.plant import make_plant, plant_problems, plant_robot
 from feltool.rmp import PrimitiveSet, RhythmicPrimitive, samples_demo, sine_demo
 from feltool.robot import Robot, data_dir, load_robot, robot_spec, with_angle_coordinates
@@ -53,6 +65,8 @@ class Experiment:
         plant: The simulated robot's dynamics (``loop.dynamics``); ``dynamics`` itself unless
             the config has a ``plant:`` block.
         model_learner: Classic FEL of an inverse-model correction (``learning.model``), or None.
+        demo_fit_rms: Per joint fitted to a demonstration: RMS over the cycle of its RMP's
+            limit cycle minus the demonstration, in [rad] (the fit error of eq. 2.4).
     """
 
     config: ExperimentConfig
@@ -69,6 +83,14 @@ class Experiment:
     hybrid: HybridLoop | None = None
     plant: Dynamics | None = None
     model_learner: ModelLearner | None = None
+    demo_fit_rms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def phase_varies(self) -> bool:
+        """Whether cycles differ in length (a period of no whole number of steps, period
+        events, an adaptive phase): metrics.csv then has cycle_s and frequency_hz."""
+        return any(not where.endswith((".amplitude", ".goal"))
+                   for where, _ in varying_phase(self.config))
 
     @property
     def learned_joints(self) -> list[str]:
@@ -287,6 +309,8 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
     fine_t = np.linspace(0.0, T, 2000, endpoint=False)
     fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     referenced: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    fit_rms: dict[str, float] = {}
+    src = str(source) if source else None
     for i, name in enumerate(joints):
         jc = cfg.joints[name]
         settings = cfg.primitives.model_dump()
@@ -297,15 +321,21 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
         prims[i] = prim
         if jc.demo is not None:
             d = jc.demo
-            q, v, a = _demo_trajectory(d, T, fine_t)
-            goal = float(np.mean(q)) if d.kind == "samples" else d.mean
-            thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=goal)
+            series = _positions_series(d, source, f"joints.{name}.demo", src)
+            q, v, a = _demo_trajectory(d, T, fine_t, series)
+            if series is not None:  # positions only: eq. 2.4 over the series' coefficients
+                thetas[i] = prim.fit_series(series)
+            else:
+                goal = float(np.mean(q)) if d.kind == "samples" else d.mean
+                thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=goal)
+            if not jc.follow_demo:
+                fit_rms[name] = prim.fit_rms(thetas[i], q, 2.0 * np.pi * fine_t / T)
             if jc.follow_demo and jc.learn is None:
-                fixed[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
+                fixed[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt, series)
             elif jc.follow_demo:
                 # the feedback holds the demo; the forward trajectory is the demo plus the
                 # learned RMP, a correction that starts at zero (init demo) or perturbed
-                referenced[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt)
+                referenced[i] = _demo_trajectory(d, T, np.arange(prim.n_steps) * dt, series)
                 thetas[i] = np.zeros(prim.n_params)
         else:
             thetas[i] = np.zeros(prim.n_params)
@@ -397,10 +427,10 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
                                    np.array(is_goal, dtype=bool), error_mask,
                                    np.array(rates), L.update, L.damping, L.sensitivity,
                                    L.fd_epsilon)
+    _check_phase(cfg, joints, robot, {joints[i] for i in (*fixed, *referenced)}, src)
     plant = dynamics
-    src = str(source) if source else None
     if cfg.plant is not None:
-        if cfg.events:
+        if any(ev.changes_world for ev in cfg.events):
             raise ConfigError([("events", "events change the known model's world; combining "
                                           "them with a plant block is not supported yet")], src)
         plant_rb = reduce_robot(plant_robot(cfg.plant, full_robot,
@@ -455,7 +485,7 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
         raise ConfigError([(f"joints.{joints[i]}.follow_demo", "with learn: only for a "
                             "physical walker (walking.feet)") for i in referenced], src)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
-                     init, source, hybrid, plant, model_learner)
+                     init, source, hybrid, plant, model_learner, fit_rms)
     if L.sensitivity == "casadi" and learner.n_learned:
         from feltool.compiled import feedforward_jacobian
 
@@ -566,12 +596,93 @@ def _walker(cfg: ExperimentConfig, robot: Robot, joints: list[str],
                   w.fall.max_abs if w.fall else np.inf, free, foot, placement)
 
 
-def _demo_trajectory(d, T: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _demo_trajectory(d, T: float, t: np.ndarray, series: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A demonstration's position [rad], velocity [rad/s] and acceleration [rad/s^2] at times
-    ``t`` [s] of a period ``T`` [s]."""
+    ``t`` [s] of a period ``T`` [s]; a positions demo from its Fourier ``series``."""
     if d.kind == "samples":
         return samples_demo(d.q, d.v, d.a, T, t)
+    if d.kind == "positions":
+        w = 2.0 * np.pi / T
+        rows = spectral.trig(w * np.asarray(t, dtype=float), spectral.degree(series))
+        dc = spectral.differentiate(series)
+        return rows @ series, w * (rows @ dc), w * w * (rows @ spectral.differentiate(dc))
     return sine_demo(d.mean, d.amplitude, T, d.phase, t, d.harmonics, d.delay)
+
+
+def _positions_series(d, source: Path | None, where: str, src: str | None) -> np.ndarray | None:
+    """The Fourier series of a positions demo (None for the other kinds), from its list or its
+    CSV column (read here, every problem named by its YAML path)."""
+    if d.kind != "positions":
+        return None
+    q = d.q
+    if q is None:
+        path = Path(d.csv).expanduser()
+        if not path.is_absolute() and source is not None:
+            path = source.parent / path
+        q = _csv_column(path, d.column, where, src)
+        if len(q) <= 2 * d.periods:
+            raise ConfigError([(f"{where}.csv", f"{len(q)} samples cannot resolve one harmonic "
+                                f"over {d.periods} period(s); give more than {2 * d.periods}")],
+                              src)
+    return spectral.from_samples(np.asarray(q, dtype=float), d.periods)
+
+
+def _csv_column(path: Path, column: str, where: str, src: str | None) -> list[float]:
+    """The numbers of one column of a CSV file with a header row [rad]."""
+    def fail(key: str, message: str):
+        return ConfigError([(f"{where}.{key}", message)], src)
+
+    try:
+        with open(path, newline="") as fh:
+            reader = csv.reader(fh)
+            header = [h.strip() for h in next(reader, [])]
+            if column not in header:
+                raise fail("column", f"{path} has no column '{column}' (its columns: "
+                                     f"{', '.join(header) or 'none'})")
+            j, values = header.index(column), []
+            for line, row in enumerate(reader, start=2):
+                if not any(c.strip() for c in row):
+                    continue
+                cell = row[j].strip() if j < len(row) else ""
+                try:
+                    x = float(cell)
+                except ValueError:
+                    raise fail("csv", f"{path} line {line}: '{cell}' in column '{column}' is "
+                                      "not a number") from None
+                if not abs(x) <= MAX_ANGLE:
+                    raise fail("csv", f"{path} line {line}: {cell} is not within "
+                                      f"+-{MAX_ANGLE:g}")
+                values.append(x)
+                if len(values) > MAX_DEMO_SAMPLES:
+                    raise fail("csv", f"{path} has more than {MAX_DEMO_SAMPLES} samples")
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise fail("csv", f"cannot read {path}: {getattr(exc, 'strerror', None) or exc}") \
+            from None
+    return values
+
+
+def _check_phase(cfg: ExperimentConfig, joints: list[str], robot: Robot, fixed: set[str],
+                 src: str | None) -> None:
+    """The phase's and the motion events' names exist, and the engine this config runs on can
+    run cycles of changing length (or refuses, naming each feature and its YAML path)."""
+    problems = motion_problems(cfg, joints, robot.model, fixed)
+    if problems:
+        raise ConfigError(problems, src)
+    L = cfg.learning
+    if cfg.primitives.phase == "adaptive" and L.step == "per_step":
+        raise ConfigError([("primitives.phase", "adaptive runs with learning.step per_cycle "
+                                                "(the per-step engine has no oscillator)")], src)
+    for engine, used in (("backend 'compiled'", cfg.backend == "compiled"),
+                         ("the walking/actuated loop", cfg.walking is not None
+                          or cfg.actuation is not None),
+                         (f"learning.update {L.update}", L.update in OWN_RUNNER),
+                         ("a disturbances block", cfg.disturbances is not None),
+                         ("learning.model", L.model is not None),
+                         ("learning.sensitivity casadi", L.sensitivity == "casadi"),
+                         ("follow_demo", bool(fixed))):
+        if used:
+            refuse_varying_phase(cfg, engine, src)
 
 
 def _physical_joints(cfg: ExperimentConfig, wm, source: Path | None) -> None:

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from feltool.dynamics import Dynamics
+from feltool.phase import PhaseSamples
 from feltool.rmp import PrimitiveSet
 
 
@@ -78,19 +79,22 @@ class FeedbackErrorLearner:
 
     def jacobian(self, dynamics: Dynamics, theta: np.ndarray, Qd: np.ndarray, Vd: np.ndarray,
                  Ad: np.ndarray, derivatives: tuple | None = None,
-                 samples: np.ndarray | None = None) -> np.ndarray:
+                 samples: np.ndarray | None = None, cycle: PhaseSamples | None = None,
+                 transients: dict | None = None) -> np.ndarray:
         """:math:`J_k = \\partial u_{ff}^k / \\partial\\theta_{learned}`, shape ``(n, nv, P)``.
 
         ``derivatives``: ``(Dq, Dv, M)`` of the inverse model along ``Qd, Vd, Ad`` if already
         computed (see :func:`feedforward_and_derivatives`). ``samples``: the RMP sample of each
         row of ``Qd`` (a walker whose phase restarts at touchdown), default ``0 .. n-1``.
+        ``cycle``: the phase at each row (default the nominal cycle); ``transients``: those of
+        :meth:`PrimitiveSet.desired` (for finite differences; they do not depend on θ).
         """
         n, nv = Qd.shape
         J = np.zeros((n, nv, self.n_learned))
         if self.n_learned == 0:
             return J
         if self.sensitivity == "finite_difference":
-            return self._jacobian_fd(dynamics, theta)
+            return self._jacobian_fd(dynamics, theta, cycle, transients)
         if self.sensitivity == "casadi":
             if self._casadi is None:
                 raise RuntimeError("sensitivity 'casadi' needs set_casadi_jacobian() first")
@@ -98,18 +102,20 @@ class FeedbackErrorLearner:
         if derivatives is None:
             derivatives = dynamics.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
         Dq, Dv, M = derivatives
-        for i, cols, prim, rows in self._blocks:
+        sens = self.primitives.sensitivities(cycle)
+        for i, cols, _, rows in self._blocks:
             sel = np.isin(rows, self.learned)
-            Xq, Xv, Xa = prim.Xq[:, sel], prim.Xv[:, sel], prim.Xa[:, sel]
+            Xq, Xv, Xa = (X[:, sel] for X in sens[i])
             if samples is not None:
                 Xq, Xv, Xa = Xq[samples], Xv[samples], Xa[samples]
             J[:, :, cols] = (Dq[:, :, i, None] * Xq[:, None, :] + Dv[:, :, i, None] * Xv[:, None, :]
                              + M[:, :, i, None] * Xa[:, None, :])
         return J
 
-    def _jacobian_fd(self, dynamics: Dynamics, theta: np.ndarray) -> np.ndarray:
+    def _jacobian_fd(self, dynamics: Dynamics, theta: np.ndarray, cycle: PhaseSamples | None,
+                     transients: dict | None) -> np.ndarray:
         """Central differences of the whole chain RMP -> RNEA, one parameter at a time."""
-        n, nv = self.primitives.n_steps, self.primitives.nv
+        n, nv = (cycle or self.primitives.nominal).n, self.primitives.nv
         J = np.zeros((n, nv, self.n_learned))
         for c, p in enumerate(self.learned):
             eps = self.fd_epsilon * max(1.0, abs(theta[p]))
@@ -117,7 +123,7 @@ class FeedbackErrorLearner:
             for sign in (1.0, -1.0):
                 th = theta.copy()
                 th[p] += sign * eps
-                Q, V, A = self.primitives.desired(th)
+                Q, V, A = self.primitives.desired(th, cycle, transients)
                 taus.append(feedforward(dynamics, Q, V, A))
             J[:, :, c] = (taus[0] - taus[1]) / (2.0 * eps)
         return J
@@ -132,17 +138,23 @@ class FeedbackErrorLearner:
         ``E`` ``(n, nv)``."""
         return np.einsum("kr,krp->p", E, J)
 
-    def step(self, theta: np.ndarray, J: np.ndarray, E: np.ndarray) -> np.ndarray:
+    def step(self, theta: np.ndarray, J: np.ndarray, E: np.ndarray,
+             weight: np.ndarray | None = None) -> np.ndarray:
         """Parameters after one update from a cycle's (or a step's) Jacobian and error torques
-        :math:`e_k` ``(n, nv)``."""
+        :math:`e_k` ``(n, nv)``. ``weight``: the phase each step covers relative to a nominal
+        step (:class:`feltool.phase.PhaseSamples`), so that the sums of eq. 3.6 integrate over
+        the phase and cycles of different lengths give updates of the same size; None: 1."""
         if self.n_learned == 0:
             return theta.copy()
+        Ew = E if weight is None else E * weight[:, None]
         hess = None
         if self.update == "gauss_newton":
             rows = np.any(E != 0, axis=0) | (self.error_mask > 0)
             JE = J * rows[None, :, None]
+            if weight is not None:
+                JE = JE * weight[:, None, None]
             hess = np.einsum("krp,krs->ps", JE, J)
-        return self.apply(theta, self.gradient(J, E), hess)
+        return self.apply(theta, self.gradient(J, Ew), hess)
 
     def apply(self, theta: np.ndarray, grad: np.ndarray, hess: np.ndarray | None) -> np.ndarray:
         """The update from :math:`g = \\sum_k J_k^\\top e_k` and (for gauss_newton)

@@ -43,7 +43,9 @@ def draw_figures(run_dir: Path, seed: int | None = None) -> list[Path]:
         written.append(_weight_convergence(load_npz(params), seed, out))
     traces = run_dir / "traces" / f"seed-{seed}.npz"
     if traces.is_file():
-        written.append(_trajectories(load_npz(traces), seed, out))
+        tr = load_npz(traces)
+        written.append(_trajectories(tr, seed, out))
+        written.append(_switches(tr, seed, out))
     return [w for w in written if w is not None]
 
 
@@ -120,6 +122,35 @@ def _trajectories(tr: dict[str, np.ndarray], seed: int, out: Path) -> Path:
         ax.set_xlabel("time in cycle [s]")
     fig.tight_layout()
     path = out / "trajectories_first_last.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _switches(tr: dict[str, np.ndarray], seed: int, out: Path) -> Path | None:
+    """The desired positions and velocities across each motion event (traces switch<c>_*)."""
+    cycles = sorted(int(k[len("switch"):-len("_t")]) for k in tr
+                    if k.startswith("switch") and k.endswith("_t"))
+    if not cycles:
+        return None
+    plt = _pyplot()
+    names = [str(n) for n in tr["joint_names"]]
+    fig, axes = plt.subplots(2, len(cycles), figsize=(4.8 * len(cycles), 5.6), squeeze=False,
+                             sharex="col")
+    for c, cycle in enumerate(cycles):
+        t = tr[f"switch{cycle}_t"]
+        for r, (key, label) in enumerate((("q", "q_d [rad]"), ("v", "qdot_d [rad/s]"))):
+            ax = axes[r][c]
+            for j, name in enumerate(names):
+                ax.plot(t, tr[f"switch{cycle}_{key}_forward"][:, j], lw=1.5, label=name)
+            ax.axvline(0.0, color="k", ls=":", lw=1)
+            ax.set_ylabel(label)
+            ax.grid(True, alpha=0.3)
+        axes[0][c].set_title(f"motion event at cycle {cycle} (seed {seed})")
+        axes[1][c].set_xlabel("time from the event [s]")
+    axes[0][0].legend(loc="best")
+    fig.tight_layout()
+    path = out / "motion_events.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path

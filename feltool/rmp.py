@@ -1,28 +1,39 @@
-r"""Rhythmic movement primitives (thesis §2.1, eq. 2.1-2.4).
+r"""Rhythmic movement primitives (thesis §2.1, eq. 2.1-2.4) as functions of the phase.
 
-Canonical system (eq. 2.1) and transformation system (eq. 2.2) with von Mises basis (eq. 2.3):
+Canonical system (eq. 2.1, :mod:`feltool.phase`) and transformation system (eq. 2.2) with von
+Mises basis (eq. 2.3):
 
 .. math::
 
-    \tau \dot\phi = 1, \qquad
+    \dot\phi = \omega = 1/\tau, \qquad
     \tau^2 \ddot q = \alpha_z(\beta_z(g - q) - \tau \dot q) + r\,\psi(\phi)^\top w, \qquad
     \psi_i(\phi) = \exp(h(\cos(\phi - c_i) - 1)).
 
-With :math:`\tau = T / 2\pi` the phase advances :math:`2\pi` per period :math:`T`. The state
-:math:`x = (q, \dot q)` obeys the *linear* system :math:`\dot x = A x + E(\phi)\,\theta` in the
-parameters :math:`\theta = (w, g)`, so feltool discretises it exactly: over one control step of
-length :math:`\Delta t` with constant :math:`\theta`,
+Written in the phase (primes are :math:`d/d\phi`, :math:`\dot q = \omega q'`), the
+transformation system does not involve the frequency at all:
 
 .. math::
 
-    x_{k+1} = \Phi x_k + \Gamma_k \theta, \qquad \Phi = e^{A\Delta t}, \qquad
-    \Gamma_k = \int_0^{\Delta t} e^{A(\Delta t - s)} E(\phi_k + s/\tau)\, ds
+    q'' = \alpha_z(\beta_z(g - q) - q') + r\,\psi(\phi)^\top w .
 
-(:math:`\Gamma_k` by Gauss-Legendre quadrature). The same recursion integrates the sensitivity
-:math:`S_k = \partial x_k / \partial\theta`: :math:`S_{k+1} = \Phi S_k + \Gamma_k` (the linear
-sensitivity ODE, exactly). The periodic solution (the limit cycle the RMP settles on) and its
-sensitivity are closed-form: :math:`x_0 = (I - \Phi^n)^{-1} \sum_k \Phi^{n-1-k} \Gamma_k \theta`,
-so a whole cycle of :math:`q_d, \dot q_d, \ddot q_d` is a fixed matrix times :math:`\theta`.
+It is the thesis's eq. 2.2 at a fixed :math:`\omega`, and Ijspeert's form with the velocity
+state :math:`z = \tau\dot q` when :math:`\omega` changes. So an RMP is one function of the phase
+whatever the speed: :math:`q_d(t) = q(\phi(t))`, :math:`\dot q_d = \omega q'`,
+:math:`\ddot q_d = \omega^2 q'' + \dot\omega q'`. The state :math:`y = (q, q')` is linear in the
+parameters :math:`\theta = (w, g)`, :math:`y' = A y + E(\phi)\theta`, and feltool solves it in
+closed form. The basis is a Fourier series with Bessel coefficients (Jacobi-Anger,
+:func:`feltool.spectral.von_mises`), and harmonic m of the forcing passes through the
+transformation system with the gain :math:`H_m = 1/(\alpha_z\beta_z - m^2 + i\alpha_z m)`.
+So the periodic solution, the limit cycle the RMP settles on, is a fixed series in the phase,
+:math:`y^*(\phi) = Y(\phi)\theta`, exact to rounding (harmonics whose basis coefficient is
+below 1e-17 of the mean are dropped). It is evaluated at any phase without any time step, and
+its sensitivity :math:`\partial y^*/\partial\theta = Y(\phi)` is the same matrix. Off the limit
+cycle the deviation decays by the homogeneous solution, so one step of any length
+:math:`\Delta\phi` is exact too:
+
+.. math::
+
+    y(\phi + \Delta\phi) = Y(\phi + \Delta\phi)\theta + e^{A\Delta\phi}(y(\phi) - Y(\phi)\theta).
 """
 
 from __future__ import annotations
@@ -31,24 +42,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from feltool import spectral
 from feltool.errors import InputError
+from feltool.phase import PhaseSamples, clock_cycle
 
-_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(12)
 
-
-def expm(A: np.ndarray) -> np.ndarray:
-    """Matrix exponential by scaling and squaring of a Taylor series (small matrices; accurate
-    to rounding for the RMP's 2 x 2 systems, and cheaper to import than scipy.linalg)."""
-    norm = float(np.abs(A).sum(axis=1).max())
-    squarings = max(0, int(np.ceil(np.log2(norm / 0.25))) if norm > 0.25 else 0)
-    X = A / 2.0**squarings
-    result, term = np.eye(len(A)), np.eye(len(A))
-    for k in range(1, 20):
-        term = term @ X / k
-        result = result + term
-    for _ in range(squarings):
-        result = result @ result
-    return result
+def exp2(A: np.ndarray, s: np.ndarray | float) -> np.ndarray:
+    """:math:`e^{As}` of a 2 x 2 matrix for times ``s`` (any shape; result ``s.shape + (2,
+    2)``), in closed form: :math:`e^{\\mu s}(\\cosh(\\gamma s) I + \\sinh(\\gamma s)/\\gamma\\,
+    (A - \\mu I))` with :math:`\\mu = \\mathrm{tr}A/2`, :math:`\\gamma^2 = \\mu^2 - \\det A`."""
+    s = np.asarray(s, dtype=float)
+    mu = 0.5 * (A[0, 0] + A[1, 1])
+    gamma = np.sqrt(complex(mu * mu - (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0])))
+    gs = gamma * s
+    small = np.abs(gs) < 1e-3
+    with np.errstate(all="ignore"):
+        up, down = np.exp((mu + gamma) * s), np.exp((mu - gamma) * s)
+        f1 = np.where(small, np.exp(mu * s) * (1 + gs**2 / 2 + gs**4 / 24), (up + down) / 2).real
+        f2 = np.where(small, np.exp(mu * s) * s * (1 + gs**2 / 6 + gs**4 / 120),
+                      (up - down) / (2 * gamma if gamma != 0 else 1.0)).real
+    B = A - mu * np.eye(2)
+    return f1[..., None, None] * np.eye(2) + f2[..., None, None] * B
 
 
 @dataclass(frozen=True)
@@ -66,13 +80,23 @@ class Trajectory:
     a: np.ndarray
 
 
+def time_derivatives(Yq: np.ndarray, Yp: np.ndarray, Ypp: np.ndarray, cycle: PhaseSamples
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Phase derivatives (rows per step of ``cycle``) as time derivatives: :math:`\\dot q =
+    \\omega q'`, :math:`\\ddot q = \\omega^2 q'' + \\dot\\omega q'`."""
+    w = cycle.omega.reshape((-1,) + (1,) * (Yp.ndim - 1))
+    wd = cycle.omega_dot.reshape(w.shape)
+    return Yq, w * Yp, w * w * Ypp + wd * Yp
+
+
 class RhythmicPrimitive:
-    """One joint's RMP sampled at a fixed control rate.
+    """One joint's RMP (eq. 2.2) as a function of the phase, with a nominal clock.
 
     Args:
         n_basis: Number of von Mises basis functions N, centres :math:`c_i = 2\\pi i / N`.
-        period_s: Period T of the rhythmic motion in [s].
-        dt: Control (sampling) step in [s]; ``period_s / dt`` must be a whole number.
+        period_s: Period T of the nominal clock in [s] (the time-based helpers below: ``Xq``,
+            ``periodic``, ``step``, ``rollout``, ``fit``); any value of at least two steps.
+        dt: Control (sampling) step of the nominal clock in [s].
         alpha_z: Timing constant :math:`\\alpha_z` (thesis: 25).
         beta_z: Timing constant :math:`\\beta_z`; default :math:`\\alpha_z / 4` (critical damping).
         width: Basis width h; default N/2 (h = N leaves ripple in :math:`\\ddot q` at T = 1 s).
@@ -82,23 +106,46 @@ class RhythmicPrimitive:
     def __init__(self, n_basis: int, period_s: float, dt: float, alpha_z: float = 25.0,
                  beta_z: float | None = None, width: float | None = None,
                  amplitude: float = 1.0):
-        steps = period_s / dt
-        n_steps = int(round(steps))
-        if n_steps < 2 or abs(steps - n_steps) > 1e-9 * max(1.0, steps):
-            raise InputError(f"a period of {period_s} s at a step of {dt} s is {steps:g} samples; "
-                             "it must be a whole number of at least 2")
+        if not period_s / dt >= 2.0:
+            raise InputError(f"a period of {period_s} s at a step of {dt} s is "
+                             f"{period_s / dt:g} samples; it must be at least 2")
         self.n_basis = int(n_basis)
         self.period_s = float(period_s)
         self.dt = float(dt)
-        self.n_steps = n_steps
         self.tau = period_s / (2.0 * np.pi)
+        self.omega = 2.0 * np.pi / period_s
         self.alpha_z = float(alpha_z)
         self.beta_z = float(alpha_z / 4.0 if beta_z is None else beta_z)
         self.width = float(n_basis / 2.0 if width is None else width)
         self.amplitude = float(amplitude)
         self.centers = 2.0 * np.pi * np.arange(self.n_basis) / self.n_basis
         self.n_params = self.n_basis + 1  # weights, then the goal
-        self._discretise()
+        az, bz = self.alpha_z, self.beta_z
+        #: the transformation system in the phase: y' = A y + E(phi) theta, y = (q, q')
+        self.A_phase = np.array([[0.0, 1.0], [-az * bz, -az]])
+        #: ... and in time at the nominal clock, x = (q, qdot): xdot = A x + ...
+        self.A = np.array([[0.0, 1.0], [-az * bz / self.tau**2, -az / self.tau]])
+        self.Phi = exp2(self.A, self.dt)
+        self.n_harmonics = spectral.von_mises_harmonics(self.width)
+        M = self.n_harmonics
+        # The forcing's series (weights: r psi_i; goal: alpha_z beta_z g), then the limit
+        # cycle's: harmonic m passes with the gain H_m (a cosine/sine pair as one complex number).
+        U = np.zeros((2 * M + 1, self.n_params))
+        self._basis_series = spectral.von_mises(self.width, self.centers, M)
+        U[:, :self.n_basis] = self.amplitude * self._basis_series
+        U[0, -1] = az * bz
+        m = np.arange(1, M + 1)[:, None]
+        H = 1.0 / (az * bz - m**2 + 1j * az * m)
+        z = H * (U[1:M + 1] - 1j * U[M + 1:])
+        Cq = np.concatenate([U[:1] / (az * bz), z.real, -z.imag])
+        Cp = spectral.differentiate(Cq)
+        #: ``(2M + 1, 3P)``: series of q, q' and q'' of the limit cycle, per parameter
+        self.series = np.concatenate([Cq, Cp, spectral.differentiate(Cp)], axis=1)
+        self.nominal = clock_cycle(self.period_s, self.dt)
+        self.n_steps = self.nominal.n
+        self._whole = abs(self.period_s / self.dt - self.n_steps) <= 1e-9 * self.n_steps
+        self._nominal_rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._transitions: dict[tuple[float, float], tuple[np.ndarray, np.ndarray]] = {}
 
     # -- eq. 2.3 -------------------------------------------------------------------------------
     def basis(self, phi: np.ndarray | float) -> np.ndarray:
@@ -107,84 +154,128 @@ class RhythmicPrimitive:
         return np.exp(self.width * (np.cos(phi - self.centers) - 1.0))
 
     def phase(self, k: np.ndarray | int) -> np.ndarray:
-        """Phase :math:`\\phi` in [rad] at step k (eq. 2.1 with :math:`\\phi(0) = 0`)."""
-        return 2.0 * np.pi * np.asarray(k, dtype=float) / self.n_steps
+        """Phase :math:`\\phi` in [rad] at step k of the nominal clock (:math:`\\phi(0) = 0`)."""
+        return np.asarray(k, dtype=float) * (self.omega * self.dt)
 
-    # -- eq. 2.2 as a linear system ------------------------------------------------------------
-    def _input_row(self, phi: np.ndarray) -> np.ndarray:
-        """Row of :math:`E(\\phi)` acting on the acceleration: :math:`\\ddot q` gets this times θ."""
-        tau2 = self.tau**2
-        psi = self.basis(phi) * (self.amplitude / tau2)
-        goal = np.full(psi.shape[:-1] + (1,), self.alpha_z * self.beta_z / tau2)
+    def input_row(self, phi: np.ndarray | float) -> np.ndarray:
+        """Row of :math:`E(\\phi)` acting on :math:`q''`: :math:`(r\\psi(\\phi), \\alpha_z
+        \\beta_z)`, shape ``(..., P)``."""
+        psi = self.basis(phi) * self.amplitude
+        goal = np.full(psi.shape[:-1] + (1,), self.alpha_z * self.beta_z)
         return np.concatenate([psi, goal], axis=-1)
 
-    def _discretise(self) -> None:
-        tau, az, bz, dt, n = self.tau, self.alpha_z, self.beta_z, self.dt, self.n_steps
-        A = np.array([[0.0, 1.0], [-az * bz / tau**2, -az / tau]])
-        self.A = A
-        self.Phi = expm(A * dt)
-        # Gamma_k = int_0^dt expm(A (dt - s)) [0; E(phi_k + s/tau)] ds, Gauss-Legendre in s.
-        s = 0.5 * dt * (_GL_NODES + 1.0)
-        decay = np.stack([expm(A * (dt - si))[:, 1] for si in s])  # (G, 2)
-        phis = self.phase(np.arange(n))[:, None] + s[None, :] / tau  # (n, G)
-        rows = self._input_row(phis)  # (n, G, P)
-        self.Gamma = 0.5 * dt * np.einsum("g,gi,kgp->kip", _GL_WEIGHTS, decay, rows)  # (n, 2, P)
-        # Periodic solution: x_k = X[k] @ theta for the limit cycle.
-        X = np.zeros((n + 1, 2, self.n_params))
-        for k in range(n):
-            X[k + 1] = self.Phi @ X[k] + self.Gamma[k]
-        PhiN = np.linalg.matrix_power(self.Phi, n)
-        x0 = np.linalg.solve(np.eye(2) - PhiN, X[n])
-        Phik = np.eye(2)
-        for k in range(n):
-            X[k] += Phik @ x0
-            Phik = self.Phi @ Phik
-        X = X[:n]
-        self.in_rows = self._input_row(self.phase(np.arange(n)))  # (n, P)
-        self.Xq = X[:, 0, :]
-        self.Xv = X[:, 1, :]
-        self.Xa = A[1, 0] * self.Xq + A[1, 1] * self.Xv + self.in_rows
-
     # -- the limit cycle and its sensitivity ---------------------------------------------------
-    def periodic(self, theta: np.ndarray) -> Trajectory:
-        """The limit cycle for parameters ``theta = (w_1..w_N, g)``, sampled at the n steps."""
-        return Trajectory(self.Xq @ theta, self.Xv @ theta, self.Xa @ theta)
+    def limit_cycle(self, phi: np.ndarray | float
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:math:`\\partial(q, q', q'')/\\partial\\theta` on the limit cycle at the phases
+        ``phi`` [rad] (primes: phase derivatives), each ``(n, P)``; the limit cycle itself is
+        these times θ."""
+        Y = spectral.trig(phi, self.n_harmonics) @ self.series
+        P = self.n_params
+        return Y[:, :P], Y[:, P:2 * P], Y[:, 2 * P:]
+
+    def sensitivity(self, cycle: PhaseSamples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:math:`\\partial(q_d, \\dot q_d, \\ddot q_d)/\\partial\\theta` at the steps of a
+        cycle, each ``(n, N + 1)``; constant in θ because the RMP is linear in θ."""
+        if cycle is self.nominal:
+            return self.periodic_sensitivity()
+        return time_derivatives(*self.limit_cycle(cycle.phi), cycle)
 
     def periodic_sensitivity(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:math:`\\partial(q_d, \\dot q_d, \\ddot q_d)/\\partial\\theta` on the limit cycle,
-        each ``(n, N + 1)``; constant because the RMP is linear in θ."""
-        return self.Xq, self.Xv, self.Xa
+        """:meth:`sensitivity` on the nominal clock's first cycle (computed once)."""
+        if self._nominal_rows is None:
+            self._nominal_rows = time_derivatives(*self.limit_cycle(self.nominal.phi),
+                                                  self.nominal)
+        return self._nominal_rows
 
-    # -- step-by-step integration (per-step learning, demos, tests) ----------------------------
+    @property
+    def Xq(self) -> np.ndarray:
+        """:math:`\\partial q_d/\\partial\\theta` on the nominal cycle ``(n, P)``."""
+        return self.periodic_sensitivity()[0]
+
+    @property
+    def Xv(self) -> np.ndarray:
+        return self.periodic_sensitivity()[1]
+
+    @property
+    def Xa(self) -> np.ndarray:
+        return self.periodic_sensitivity()[2]
+
+    def periodic(self, theta: np.ndarray) -> Trajectory:
+        """The limit cycle for parameters ``theta = (w_1..w_N, g)`` on the nominal cycle."""
+        Xq, Xv, Xa = self.periodic_sensitivity()
+        return Trajectory(Xq @ theta, Xv @ theta, Xa @ theta)
+
+    # -- step by step, exact for any step of the phase -----------------------------------------
+    def state_rows(self, phi: float) -> np.ndarray:
+        """``(2, P)``: :math:`\\partial(q, q')/\\partial\\theta` on the limit cycle at ``phi``."""
+        Yq, Yp, _ = self.limit_cycle(phi)
+        return np.concatenate([Yq, Yp])
+
+    def transition(self, phi: float, dphi: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, G)`` with :math:`y(\\phi + \\Delta\\phi) = F y(\\phi) + G\\theta` for θ held
+        over the step (phase units, ``y = (q, q')``). Kept for phases met again (a clock's
+        cycles repeat theirs); the arrays are shared, not to be modified."""
+        key = (float(phi), float(dphi))
+        out = self._transitions.get(key)
+        if out is None:
+            if len(self._transitions) >= 8192:
+                self._transitions.clear()
+            F = exp2(self.A_phase, dphi)
+            out = self._transitions[key] = (F, self.state_rows(phi + dphi)
+                                            - F @ self.state_rows(phi))
+        return out
+
+    def phase_acceleration(self, y: np.ndarray, theta: np.ndarray, phi: float) -> float:
+        """:math:`q''` at the state ``y = (q, q')`` and phase ``phi`` (the transformation
+        system in the phase)."""
+        return float(self.A_phase[1] @ y + self.input_row(phi) @ theta)
+
+    def phase_acceleration_sensitivity(self, S: np.ndarray, phi: float) -> np.ndarray:
+        """:math:`\\partial q''/\\partial\\theta` from the state's sensitivity ``S``
+        ``(2, P)``."""
+        return self.A_phase[1] @ S + self.input_row(phi)
+
+    # time units at the nominal clock, step k (demos, tests)
+    def _nominal_step(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        S = np.array([1.0, self.omega])
+        F, G = self.transition(float(self.phase(k % self.n_steps if self._whole else k)),
+                               self.omega * self.dt)
+        return S[:, None] * F / S[None, :], S[:, None] * G
+
     def step(self, x: np.ndarray, theta: np.ndarray, k: int) -> np.ndarray:
         """State ``(q, qdot)`` at step k+1 from step k with θ held over the step."""
-        return self.Phi @ x + self.Gamma[k % self.n_steps] @ theta
+        F, G = self._nominal_step(k)
+        return F @ x + G @ theta
 
     def step_sensitivity(self, S: np.ndarray, k: int) -> np.ndarray:
         """Sensitivity :math:`\\partial x_{k+1}/\\partial\\theta` from
         :math:`\\partial x_k/\\partial\\theta` (the linear sensitivity recursion)."""
-        return self.Phi @ S + self.Gamma[k % self.n_steps]
+        F, G = self._nominal_step(k)
+        return F @ S + G
 
     def acceleration(self, x: np.ndarray, theta: np.ndarray, k: int) -> float:
         """:math:`\\ddot q` at step k from eq. 2.2."""
-        return float(self.A[1] @ x + self.in_rows[k % self.n_steps] @ theta)
+        return float(self.A[1] @ x + self.omega**2 * self.input_row(self.phase(k)) @ theta)
 
     def acceleration_sensitivity(self, S: np.ndarray, k: int) -> np.ndarray:
-        return self.A[1] @ S + self.in_rows[k % self.n_steps]
+        return self.A[1] @ S + self.omega**2 * self.input_row(self.phase(k))
 
     def rollout(self, theta: np.ndarray, x0: np.ndarray, n: int) -> Trajectory:
-        """Integrate n steps from state ``x0 = (q, qdot)`` with fixed θ."""
-        qs, vs, accs = np.empty(n), np.empty(n), np.empty(n)
-        x = np.asarray(x0, dtype=float)
-        for k in range(n):
-            qs[k], vs[k] = x
-            accs[k] = self.acceleration(x, theta, k)
-            x = self.step(x, theta, k)
-        return Trajectory(qs, vs, accs)
+        """n steps of the nominal clock from the state ``x0 = (q, qdot)`` with fixed θ: the
+        limit cycle plus the homogeneous solution of the deviation from it (what :meth:`step`
+        gives step by step, in one evaluation)."""
+        phi = self.phase(np.arange(n))
+        Yq, Yp, Ypp = (Y @ theta for Y in self.limit_cycle(phi))
+        x0 = np.asarray(x0, dtype=float)
+        d = exp2(self.A_phase, phi) @ np.array([x0[0] - Yq[0], x0[1] / self.omega - Yp[0]])
+        w = self.omega
+        return Trajectory(Yq + d[:, 0], w * (Yp + d[:, 1]), w * w * (Ypp + d @ self.A_phase[1]))
 
     # -- eq. 2.4 ---------------------------------------------------------------------------------
     def fit(self, q, v, a, phi: np.ndarray, goal: float | None = None) -> np.ndarray:
-        """Least-squares weights for a demonstration (eq. 2.4); returns ``theta = (w, g)``.
+        """Least-squares weights for a demonstration at the nominal clock (eq. 2.4); returns
+        ``theta = (w, g)``.
 
         Args:
             q, v, a: Demonstrated position [rad], velocity [rad/s], acceleration [rad/s^2].
@@ -197,6 +288,36 @@ class RhythmicPrimitive:
         design = self.basis(phi) * self.amplitude
         w, *_ = np.linalg.lstsq(design, target, rcond=None)
         return np.concatenate([w, [g]])
+
+    def fit_series(self, series: np.ndarray, goal: float | None = None) -> np.ndarray:
+        """Eq. 2.4 over the whole phase: the weights whose forcing term is closest in
+        :math:`L^2(0, 2\\pi)` to the demonstration's, :math:`q'' - \\alpha_z(\\beta_z(g - q) -
+        q')`, for a demonstration given as a Fourier series of the phase
+        (:mod:`feltool.spectral`; its derivatives are exact). The least squares runs over the
+        series' coefficients (Parseval), not over samples. Returns ``theta = (w, g)``.
+
+        Args:
+            series: Coefficients of :math:`q(\\phi)` [rad], see :mod:`feltool.spectral`.
+            goal: Baseline g in [rad]; default the demonstration's mean.
+        """
+        # harmonics above the basis's are orthogonal to every basis function: they add the
+        # same residual whatever the weights, so the least squares runs without them
+        M = self.n_harmonics
+        c = spectral.pad(np.asarray(series, dtype=float), M)
+        g = float(c[0]) if goal is None else float(goal)
+        dc = spectral.differentiate(c)
+        target = spectral.differentiate(dc) + self.alpha_z * dc + self.alpha_z * self.beta_z * c
+        target[0] -= self.alpha_z * self.beta_z * g
+        design = self.amplitude * self._basis_series
+        w, *_ = np.linalg.lstsq(spectral.parseval_rows(design), spectral.parseval_rows(target),
+                                rcond=None)
+        return np.concatenate([w, [g]])
+
+    def fit_rms(self, theta: np.ndarray, q: np.ndarray, phi: np.ndarray) -> float:
+        """RMS in [rad] of the limit cycle minus the demonstration ``q`` at the phases
+        ``phi`` (the fit error; on a fine uniform grid of the phase this is the RMS over the
+        cycle)."""
+        return float(np.sqrt(np.mean((self.limit_cycle(phi)[0] @ theta - q) ** 2)))
 
 
 def sine_demo(mean: float, amplitude: float, period_s: float, phase: float, t: np.ndarray,
@@ -253,26 +374,61 @@ class PrimitiveSet:
         self.nv = nv
         self.fixed = dict(fixed or {})
         self.offsets = dict(offsets or {})
-        self.n_steps = next(iter(self.primitives.values())).n_steps
+        first = next(iter(self.primitives.values()))
+        self.n_steps = first.n_steps
+        #: the nominal clock's first cycle (the thesis's cycle at a whole-sample period)
+        self.nominal = first.nominal
         self.slices: dict[int, slice] = {}
         start = 0
         for i, prim in self.primitives.items():
             self.slices[i] = slice(start, start + prim.n_params)
             start += prim.n_params
         self.n_params = start
+        self._cache: dict[tuple, dict[int, tuple]] = {}
 
-    def desired(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Limit-cycle :math:`q_d, \\dot q_d, \\ddot q_d` of every joint, each ``(n, nv)``."""
-        n = self.n_steps
+    def sensitivities(self, cycle: PhaseSamples | None = None
+                      ) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per joint, :math:`\\partial(q_d, \\dot q_d, \\ddot q_d)/\\partial\\theta_i` at the
+        steps of ``cycle`` (default the nominal one), each ``(n, P_i)``; the last few cycles'
+        are kept (a clock repeats its cycles)."""
+        cycle = cycle or self.nominal
+        key = cycle.key()
+        if key == self.nominal.key():
+            return {i: p.periodic_sensitivity() for i, p in self.primitives.items()}
+        if key not in self._cache:
+            if len(self._cache) >= 4:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = {i: p.sensitivity(cycle) for i, p in self.primitives.items()}
+        return self._cache[key]
+
+    def desired(self, theta: np.ndarray, cycle: PhaseSamples | None = None,
+                transients: dict[int, tuple[np.ndarray, float]] | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:math:`q_d, \\dot q_d, \\ddot q_d` of every joint at the steps of ``cycle`` (default
+        the nominal cycle), each ``(n, nv)``: the limit cycle of ``theta``, plus for the joints
+        in ``transients`` (``{index: (y0, phi0)}``) the homogeneous solution
+        :math:`e^{A(\\phi - \\phi_0)} y_0` started at the phase :math:`\\phi_0` [rad] (counted
+        from the run's start) by an amplitude or goal change."""
+        cycle = cycle or self.nominal
+        n = cycle.n
+        sens = self.sensitivities(cycle)
         Q, V, A = np.zeros((n, self.nv)), np.zeros((n, self.nv)), np.zeros((n, self.nv))
         for i, prim in self.primitives.items():
             if i in self.fixed:
                 Q[:, i], V[:, i], A[:, i] = self.fixed[i]
                 continue
             th = theta[self.slices[i]]
-            Q[:, i], V[:, i], A[:, i] = prim.Xq @ th, prim.Xv @ th, prim.Xa @ th
+            Xq, Xv, Xa = sens[i]
+            Q[:, i], V[:, i], A[:, i] = Xq @ th, Xv @ th, Xa @ th
             if i in self.offsets:  # a learned correction on top of a given motion
                 q, v, a = self.offsets[i]
+                Q[:, i] += q
+                V[:, i] += v
+                A[:, i] += a
+            if transients and i in transients:
+                y0, phi0 = transients[i]
+                y = exp2(prim.A_phase, cycle.elapsed - phi0) @ y0
+                q, v, a = time_derivatives(y[:, 0], y[:, 1], y @ prim.A_phase[1], cycle)
                 Q[:, i] += q
                 V[:, i] += v
                 A[:, i] += a

@@ -383,6 +383,7 @@ def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult]) -> 
                "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                "robot": exp.config.robot_source, "joints": exp.joints,
                "learned_joints": exp.learned_joints, "error_joints": exp.error_joints,
+               "demo_fit_rms_rad": exp.demo_fit_rms,
                "seeds": seeds, "aggregate": aggregate(seeds)}
     write_json(out_dir / "summary.json", summary)
     return summary

@@ -24,6 +24,8 @@ from feltool.fel import feedforward
 from feltool.ilc import OWN_RUNNER
 from feltool.ilc import cycle_runner as ilc_cycle_runner
 from feltool.ilc_walker import cycle_runner as walker_cycle_runner
+from feltool.motion import Motion
+from feltool.phase import PhaseSamples
 from feltool.simulate import ClosedLoop, CycleLog
 
 if TYPE_CHECKING:
@@ -61,6 +63,9 @@ class CycleOutcome:
         theta_m_next: The inverse-model correction after the cycle (``learning.model``), else
             None.
         contact: A physical walker's contact metrics of the cycle (:func:`contact_metrics`).
+        cycle: The phase at the cycle's steps (None: the nominal cycle).
+        desired: The cycle's desired positions, velocities and accelerations, each ``(n, nv)``,
+            where the engine has them.
     """
 
     theta_next: np.ndarray
@@ -79,6 +84,8 @@ class CycleOutcome:
     theta_m_next: np.ndarray | None = None
     limit_hits: tuple[np.ndarray, np.ndarray] | None = None
     contact: dict | None = None
+    cycle: PhaseSamples | None = None
+    desired: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
@@ -118,6 +125,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     rows, history, traces, last = [], [theta[exp.learner.learned].copy()], {}, None
     reason, start, wall_before = None, 1, 0.0
     run_cycle = _cycle_runner(exp, theta, seed)
+    motion: Motion | None = getattr(run_cycle, "motion", None)
+    switches = {ev.cycle for _, ev in cfg.motion_events}
     model = exp.model_learner
     theta_m = model.initial_parameters() if model else None
     model_history = [theta_m]
@@ -137,8 +146,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     t0 = time.perf_counter()
     plant, impacts = _plant_at_start(exp, start), {"guard": 0, "clock": 0}
     hits = [np.zeros(len(exp.joints), int), np.zeros(len(exp.joints), int)]
-    checked, contacts, out, cycle = False, [], None, start - 1
+    checked, contacts, out, cycle, steps = False, [], None, start - 1, 0
     if saved is not None:  # counters of the cycles before the checkpoint
+        steps = int(saved.get("steps", n * len(rows)))
         impacts.update(saved.get("impacts", {}))
         contacts = list(saved.get("contacts", []))
         if saved.get("limit_hits") is not None:
@@ -148,12 +158,15 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     def save(at_cycle: int, wall: float) -> None:
         _save_checkpoint(checkpoint, at_cycle, theta, q, v, rows, history, traces, wall,
                          run_cycle, (theta_m, model_history) if model is not None else None,
-                         {"impacts": impacts, "contacts": contacts,
+                         {"impacts": impacts, "contacts": contacts, "steps": steps,
                           "limit_hits": [h.tolist() for h in hits] if checked else None})
     for cycle in range(start, cycles + 1):
         if cycle > start:
             plant = _plant_for_cycle(exp, cycle) or plant
-        out = run_cycle(theta, q, v, plant, theta_m)
+        if motion is not None:
+            theta = motion.apply_events(cycle, theta)
+        before, out = out, run_cycle(theta, q, v, plant, theta_m)
+        steps += out.cycle.n if out.cycle is not None else n
         for _, by_guard, _ in out.impacts:
             impacts["guard" if by_guard else "clock"] += 1
         if out.limit_hits is not None:
@@ -173,6 +186,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             contacts.append(out.contact)
         if cycle == 1:
             traces.update(_trace("first", *out.trace()))
+        if cycle in switches and before is not None and before.desired is not None:
+            traces.update(_switch_trace(cycle, before, out, cfg.dt))
         last = out
         theta = out.theta_next
         history.append(theta[exp.learner.learned].copy())
@@ -188,7 +203,6 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     wall = wall_before + time.perf_counter() - t0
     if last is not None:
         traces.update(_trace("last", *last.trace()))
-    steps = n * (len(rows) + (1 if reason else 0))
     if checkpoint is not None:  # the final state stays, so that a resume may add cycles
         if reason is None and rows and rows[-1]["cycle"] % checkpoint.every:
             save(rows[-1]["cycle"], wall)
@@ -264,15 +278,20 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
     if exp.model_learner is not None:
         return lambda theta, q, v, plant, theta_m: _model_cycle(exp, theta, q, v, theta_m,
                                                                 loop_for(plant))
+    motion = Motion(exp, continuous=exp.config.learning.step == "per_step")
     if exp.config.learning.step == "per_step":
         states = _limit_cycle_states(exp, theta0)
 
-        def per_step(theta, q, v, plant, theta_m=None):
-            return _outcome(exp, *_per_step_cycle(exp, theta, q, v, states, loop_for(plant)))
+        def run(theta, q, v, plant, theta_m=None):
+            return _per_step_cycle(exp, theta, q, v, states, motion, loop_for(plant))
 
-        per_step.rmp_states = states
-        return per_step
-    return lambda theta, q, v, plant, theta_m=None: _per_cycle(exp, theta, q, v, loop_for(plant))
+        run.rmp_states = states
+    else:
+        def run(theta, q, v, plant, theta_m=None):
+            return _per_cycle(exp, theta, q, v, loop_for(plant), motion)
+
+    run.motion, run.extra_state, run.restore_state = motion, motion.state, motion.restore
+    return run
 
 
 def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
@@ -283,7 +302,7 @@ def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
 
 def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
     """The simulated world at cycle ``start`` (every event up to it applied; resumed runs)."""
-    events = [ev for ev in exp.config.events if ev.cycle <= start]
+    events = [ev for ev in exp.config.events if ev.cycle <= start and ev.changes_world]
     if not events:
         return exp.dynamics
     backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
@@ -321,17 +340,37 @@ def _feedforward(exp: Experiment, Qd, Vd, Ad) -> tuple[np.ndarray, list | None]:
     return feedforward(exp.dynamics, Qd, Vd, Ad), None
 
 
-def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop) -> CycleOutcome:
-    """One cycle on the limit cycle of the current parameters, then one update (eq. 3.6)."""
-    Qd, Vd, Ad = exp.primitives.desired(theta)
-    R, Rd = exp.law.references(Qd, Vd)
-    u_ff, derivs = _feedforward(exp, Qd, Vd, Ad)
-    log = loop.run_cycle(q, v, R, Rd, u_ff)
+def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop,
+               motion: Motion | None = None) -> CycleOutcome:
+    """One cycle (one revolution of the phase) on the limit cycle of the current parameters,
+    then one update (eq. 3.6) weighted by the phase each step covers. Without ``motion`` the
+    cycle is the nominal one."""
+    stalled, cycle = None, None
+    if motion is not None and motion.adaptive:
+        log, cycle, (Qd, Vd, Ad), stalled = motion.run_adaptive_cycle(loop, q, v, theta)
+        derivs = None
+        if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
+            derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
+    else:
+        if motion is not None:
+            cycle = motion.next_cycle()
+            Qd, Vd, Ad = motion.desired(theta, cycle)
+        else:
+            Qd, Vd, Ad = exp.primitives.desired(theta)
+        R, Rd = exp.law.references(Qd, Vd)
+        u_ff, derivs = _feedforward(exp, Qd, Vd, Ad)
+        log = loop.run_cycle(q, v, R, Rd, u_ff)
+    weight = cycle.weight if cycle is not None else None
     theta_next = theta
-    if exp.learner.n_learned and np.all(np.isfinite(log.v)):
-        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs)
-        theta_next = exp.learner.step(theta, J, log.u_err)
-    return _outcome(exp, log, Qd, theta_next)
+    if exp.learner.n_learned and np.all(np.isfinite(log.v)) and stalled is None:
+        J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs, cycle=cycle,
+                                 transients=motion.transients if motion is not None else None)
+        theta_next = exp.learner.step(theta, J, log.u_err, weight)
+    out = _outcome(exp, log, Qd, theta_next, weight)
+    out.cycle, out.desired, out.fall = cycle, (Qd, Vd, Ad), stalled
+    if motion is not None:
+        motion.end_cycle()
+    return out
 
 
 def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics,
@@ -533,18 +572,25 @@ def _model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
     return out
 
 
-def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next) -> CycleOutcome:
+def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next,
+             weight: np.ndarray | None = None) -> CycleOutcome:
+    """The cycle's metrics: means over its steps, each weighted by the phase it covers
+    (``weight``, :class:`~feltool.phase.PhaseSamples`; None: plain means)."""
     R, _ = exp.law.references(Qd, Qd)
     controlled = exp.law.tracking | exp.law.stabilizing
     nv = log.q_end.shape[0]
     # a walker's cycle that stopped (not walking) before its first sample logs no rows: its
     # means are zero, not a reduction over nothing
-    mean = lambda X: np.abs(X).mean(axis=0) if len(X) else np.zeros(nv)  # noqa: E731
+    if weight is None:
+        average = lambda X: X.mean(axis=0)  # noqa: E731
+    else:
+        average = lambda X: (X * weight[:, None]).sum(axis=0) / weight.sum()  # noqa: E731
+    mean = lambda X: average(np.abs(X)) if len(X) else np.zeros(nv)  # noqa: E731
     with np.errstate(all="ignore"):
         err = np.abs(wrap(R - exp.law.quantity(log.q)))[:, controlled]
         return CycleOutcome(
             theta_next, log.q_end, log.v_end, mean(log.u_fb),
-            np.sqrt(np.mean((Qd - log.q) ** 2, axis=0)) if len(log.q) else np.zeros(nv),
+            np.sqrt(average((Qd - log.q) ** 2)) if len(log.q) else np.zeros(nv),
             float(err.max()) if err.size else 0.0,
             float(np.abs(log.v).max()) if log.v.size else 0.0,
             bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
@@ -600,32 +646,39 @@ def _compiled_runner(exp: Experiment) -> Callable[..., CycleOutcome]:
 
 
 def _limit_cycle_states(exp: Experiment, theta: np.ndarray) -> dict[int, tuple]:
-    """Each RMP's state (q, qdot) and sensitivity at phase 0 of its limit cycle."""
-    return {i: (np.array([p.Xq[0] @ theta[exp.primitives.slices[i]],
-                          p.Xv[0] @ theta[exp.primitives.slices[i]]]),
-                np.stack([p.Xq[0], p.Xv[0]]))
-            for i, p in exp.primitives.primitives.items()}
+    """Each RMP's state :math:`(q, q')` (phase units) and its sensitivity at phase 0 of its
+    limit cycle."""
+    out = {}
+    for i, p in exp.primitives.primitives.items():
+        S = p.state_rows(0.0)
+        out[i] = (S @ theta[exp.primitives.slices[i]], S)
+    return out
 
 
 def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, tuple],
-                    loop: ClosedLoop | None = None):
-    """One cycle with an update after every step; the RMP states (updated in place in
-    ``states``) run on continuously, their sensitivities propagated alongside. ``loop``
-    simulates the world (default ``exp.loop``)."""
+                    motion: Motion, loop: ClosedLoop | None = None) -> CycleOutcome:
+    """One cycle with an update after every step; the RMP states :math:`y = (q, q')` (updated
+    in place in ``states``) run on continuously through the exact step of the phase
+    (:meth:`~feltool.rmp.RhythmicPrimitive.transition`), their sensitivities propagated
+    alongside. ``loop`` simulates the world (default ``exp.loop``)."""
     loop = loop or exp.loop
-    prims, n, nv = exp.primitives, exp.primitives.n_steps, exp.primitives.nv
+    cycle = motion.next_cycle()
+    prims, n, nv = exp.primitives, cycle.n, exp.primitives.nv
     learner, law, dyn = exp.learner, exp.law, exp.dynamics
     theta = theta.copy()
-    Q, V, U, Urows, Uerr, Qd, Vd = (np.empty((n, nv)) for _ in range(7))
+    Q, V, U, Urows, Uerr, Qd, Vd, Ad = (np.empty((n, nv)) for _ in range(8))
     for k in range(n):
+        phi, w, wd = cycle.phi[k], cycle.omega[k], cycle.omega_dot[k]
         qd, vd, ad = np.empty(nv), np.empty(nv), np.empty(nv)
         Sq, Sv, Sa = {}, {}, {}
         for i, p in prims.primitives.items():
-            x, S = states[i]
+            y, S = states[i]
             th = theta[prims.slices[i]]
-            qd[i], vd[i], ad[i] = x[0], x[1], p.acceleration(x, th, k)
-            Sq[i], Sv[i], Sa[i] = S[0], S[1], p.acceleration_sensitivity(S, k)
-        Qd[k], Vd[k] = qd, vd
+            qd[i], vd[i] = y[0], w * y[1]
+            ad[i] = w * w * p.phase_acceleration(y, th, phi) + wd * y[1]
+            Sq[i], Sv[i] = S[0], w * S[1]
+            Sa[i] = w * w * p.phase_acceleration_sensitivity(S, phi) + wd * S[1]
+        Qd[k], Vd[k], Ad[k] = qd, vd, ad
         R, Rd = law.references(qd[None], vd[None])
         u_fb, u_rows, u_err = law.terms(q, v, R[0], Rd[0], exp.loop.error_rows)
         u_ff = dyn.inverse(qd, vd, ad)
@@ -638,11 +691,14 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
         Q[k], V[k], U[k], Urows[k], Uerr[k] = q, v, u_fb, u_rows, u_err
         q, v = loop.advance(q, v, loop.actuated * (u_ff + u_fb))
         for i, p in prims.primitives.items():
-            x, S = states[i]
-            th = theta[prims.slices[i]]
-            states[i] = (p.step(x, th, k), p.step_sensitivity(S, k))
-        theta = learner.step(theta, J, u_err[None])
-    return CycleLog(Q, V, U, q, v, Urows, Uerr), Qd, theta
+            y, S = states[i]
+            F, G = p.transition(phi, cycle.dphi[k])
+            states[i] = (F @ y + G @ theta[prims.slices[i]], F @ S + G)
+        theta = learner.step(theta, J, u_err[None],
+                             None if cycle.weight is None else cycle.weight[k:k + 1])
+    out = _outcome(exp, CycleLog(Q, V, U, q, v, Urows, Uerr), Qd, theta, cycle.weight)
+    out.cycle, out.desired = cycle, (Qd, Vd, Ad)
+    return out
 
 
 def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
@@ -657,6 +713,9 @@ def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
     for i, name in enumerate(exp.joints):
         row[f"track_err_rms_{name}"] = float(rms[i])
     row["param_norm"] = float(np.linalg.norm(theta[exp.learner.learned]))
+    if exp.phase_varies and out.cycle is not None:  # cycles of changing length
+        row["cycle_s"] = out.cycle.n * exp.config.dt
+        row["frequency_hz"] = float(out.cycle.dphi.sum() / (2.0 * np.pi * row["cycle_s"]))
     if out.contact is not None:
         for key in ("min_normal_force", "max_friction_ratio", "min_clearance",
                     "max_impulse_ratio", "impact_energy_lost", "step_length", "distance"):
@@ -666,6 +725,17 @@ def _metrics(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
 
 def _trace(which: str, log: CycleLog, Qd: np.ndarray) -> dict[str, np.ndarray]:
     return {f"{which}_q_system": log.q, f"{which}_q_forward": Qd, f"{which}_u_fb": log.u_fb}
+
+
+def _switch_trace(cycle: int, before: CycleOutcome, after: CycleOutcome,
+                  dt: float) -> dict[str, np.ndarray]:
+    """The desired trajectory across a motion event at the start of ``cycle``: the cycle
+    before it and the cycle it starts, one after the other (``switch<cycle>_t`` [s] from the
+    event, ``_q_forward`` [rad], ``_v_forward`` [rad/s])."""
+    Q = np.concatenate([before.desired[0], after.desired[0]])
+    V = np.concatenate([before.desired[1], after.desired[1]])
+    t = (np.arange(len(Q)) - len(before.desired[0])) * dt
+    return {f"switch{cycle}_t": t, f"switch{cycle}_q_forward": Q, f"switch{cycle}_v_forward": V}
 
 
 def _seed_summary(exp: Experiment, seed: int, rows, reason: str | None,

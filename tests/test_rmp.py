@@ -94,9 +94,11 @@ def test_basis_is_von_mises():
     assert prim.basis(prim.centers[2])[2] == pytest.approx(1.0)
 
 
-def test_period_must_be_whole_number_of_steps():
-    with pytest.raises(InputError, match="whole number"):
-        RhythmicPrimitive(10, 1.0, 0.03)
+def test_a_period_needs_two_steps_but_not_a_whole_number_of_them():
+    with pytest.raises(InputError, match="at least 2"):
+        RhythmicPrimitive(10, 0.015, 0.01)
+    prim = RhythmicPrimitive(10, 1.0, 0.03)  # 33.3 steps: the first cycle has 34
+    assert prim.n_steps == 34 and prim.nominal.phi[-1] < 2 * np.pi < prim.phase(34)
 
 
 # -- independent references: scipy's matrix exponential and ODE solver (issue 14) ----------------
@@ -119,14 +121,25 @@ def _rmp_ode(prim: RhythmicPrimitive, theta: np.ndarray):
 
 @pytest.mark.parametrize("scale", [1e-3, 0.3, 1.0, 4.0, 20.0])
 def test_matrix_exponential_matches_scipy(scale, rng):
+    """The closed-form 2 x 2 exponential against scipy, for random matrices, several times at
+    once, and the RMP's critically damped matrix (a repeated eigenvalue)."""
     from scipy.linalg import expm as scipy_expm
 
-    from feltool.rmp import expm
+    from feltool.rmp import exp2
 
+    times = np.array([0.0, 0.01, 0.37, 1.0])
     for _ in range(5):
         A = rng.normal(size=(2, 2)) * scale
-        np.testing.assert_allclose(expm(A), scipy_expm(A), rtol=1e-11,
-                                   atol=1e-14 * np.abs(scipy_expm(A)).max())
+        for s, E in zip(times, exp2(A, times)):
+            ref = scipy_expm(A * s)
+            np.testing.assert_allclose(E, ref, rtol=1e-11, atol=1e-14 * np.abs(ref).max())
+    # critically damped (eq. 2.2 with beta_z = alpha_z / 4): A - mu I is nilpotent, so
+    # exp(A s) = exp(mu s) (I + s (A - mu I)) exactly (scipy's Pade is off by 1e-11 far out)
+    A = scale * np.array([[0.0, 1.0], [-25.0 * 6.25, -25.0]])
+    mu = -12.5 * scale
+    for s, E in zip(times, exp2(A, times)):
+        ref = np.exp(mu * s) * (np.eye(2) + s * (A - mu * np.eye(2)))
+        np.testing.assert_allclose(E, ref, rtol=1e-13, atol=1e-15 * np.abs(ref).max())
 
 
 @pytest.mark.parametrize("dt", [1e-3, 1e-2, 2e-2])
