@@ -1,7 +1,7 @@
 """FEL against the other learners, side by side: the tables and figures of docs/comparison.md.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/methods.py [--seeds 10] [--robust-seeds 3]
-        [--quick] [--out benchmarks/results]
+        [--quick] [--parts arms,walker,cost] [--jobs 2] [--out benchmarks/results]
 
 For every learner (gradient and gauss_newton FEL, P-type and norm-optimal ILC, feedback only)
 on the standard arm, the human arm, the double-pendulum balance and the UR5 keeping its tool
@@ -24,6 +24,14 @@ sequence resampled by phase; and the cost of one learning update alone, best of 
 simulation of the cycle (``--cost-only`` runs just that). Writes ``methods.json``,
 ``methods.md``, ``update_cost.{json,md}`` and figures into ``--out`` and
 ``docs/figures/methods_*.png``.
+
+The physical five-link walker (``--parts walker``): every learner over ``--seeds`` seeds at
+:data:`WALKER_CYCLES` cycles (cycles to 5 %, final feedback, the torso's RMS from its design
+and the legs' tracking error over the last cycle, computation per cycle, learned numbers,
+whether every step walked), and its robustness scores (``--robust-seeds`` seeds,
+:data:`WALKER_ROBUST_CYCLES` cycles per point, the walker ranges of
+:data:`feltool.robustness.WALKER_SCENARIOS`); writes ``methods_walker.{md,json}`` and
+``docs/figures/methods_walker_*.png``.
 """
 
 from __future__ import annotations
@@ -44,7 +52,14 @@ from feltool.config import read_yaml  # noqa: E402
 from feltool.control import wrap  # noqa: E402
 from feltool.experiment import load_experiment, run_seed  # noqa: E402
 from feltool.ilc import channels, cycle_runner  # noqa: E402
-from feltool.robustness import LEARNERS, SCENARIOS, format_scores, robustness  # noqa: E402
+from feltool.ilc_walker import lifted_model  # noqa: E402
+from feltool.robustness import (  # noqa: E402
+    LEARNERS,
+    SCENARIOS,
+    WALKER_SCENARIOS,
+    format_scores,
+    robustness,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
@@ -63,7 +78,14 @@ SETTINGS = {
     "feedback_only": [],
 }
 PER_CONFIG = {("two_link_human_arm", "ilc_p"): ["ilc.cutoff_hz=10"],
-              ("ur5_wrist_level", "ilc_p"): ["ilc.gain=0.3"]}
+              ("ur5_wrist_level", "ilc_p"): ["ilc.gain=0.3"],
+              # gradient FEL on the walker: about 1 / the largest eigenvalue of J_m'J_m (the
+              # torso weights' Gauss-Newton matrix in motor torques) at the first cycle, 37-55
+              # on seeds 0-2, so that the step is stable; the config's own update is GN
+              ("gaits/five_link_walker", "gradient"): ["learning.rates.weights=0.02"]}
+WALKER = {"five-link walker": "gaits/five_link_walker"}
+WALKER_CYCLES = 40  # the table's cycles (the config's 150 for time: 5 learners x 10 seeds)
+WALKER_ROBUST_CYCLES = 30  # per point: gradient FEL (the slowest) undisturbed is at 0.05-0.1 by 10
 
 
 def overrides(config: str, learner: str) -> list[str]:
@@ -228,7 +250,44 @@ def update_cost(repeats: int = 5) -> list[dict]:
             times.append(time.perf_counter() - t0)
         return 1e3 * min(times)
 
-    return [_cost_of(arm, config, best) for arm, config in ARMS.items()]
+    return [_cost_of(arm, config, best) for arm, config in ARMS.items()] + \
+        [_walker_cost_of(robot, config, best) for robot, config in WALKER.items()]
+
+
+def _walker_cost_of(robot: str, config: str, best) -> dict:
+    """As :func:`_cost_of` for a physical walker: FEL's motor-space update, ILC's per-sample
+    updates; norm-optimal ILC's lifted model and its factor are built once (timed apart)."""
+    from feltool.ilc import NormOptimalILC, PTypeILC
+    from feltool.ilc_walker import norm_optimal_factor, phase_error
+    from feltool.seed import _motor_step, error_torques
+
+    exp = load_experiment(CONFIGS / f"{config}.yaml", overrides(config, "gauss_newton"))
+    grad = load_experiment(CONFIGS / f"{config}.yaml", overrides(config, "gradient"))
+    theta = exp.initial_parameters(0)
+    P, Pv, Pa = exp.primitives.desired(theta)
+    q, v = exp.hybrid.initial_state(P, Pv)
+    log = exp.hybrid.run_cycle(exp.dynamics, q, v, P, Pv, Pa)
+    ilc = exp.config.ilc
+    p_type = PTypeILC(ilc.gain, ilc.lead_steps, ilc.cutoff_hz, ilc.order, exp.config.sim.rate_hz)
+    norm = NormOptimalILC(ilc.weight_error, ilc.weight_change)
+    dU = np.zeros((exp.primitives.n_steps, exp.hybrid.walker.B.shape[1]))
+    t0 = time.perf_counter()
+    G, factor = norm_optimal_factor(exp, norm)
+    setup_s = time.perf_counter() - t0
+
+    def fel(e=exp):
+        _, *d = e.hybrid.jacobian_derivatives(log)
+        J = e.learner.jacobian(e.dynamics, theta, log.Qd, log.Vd, log.Ad, d,
+                               samples=log.phase_index)
+        _motor_step(e, theta, log.allocation, J, error_torques(e, log))
+
+    return {"robot": robot, "samples": exp.primitives.n_steps,
+            "simulation_ms": best(lambda: exp.hybrid.run_cycle(exp.dynamics, q, v, P, Pv, Pa)),
+            "gradient_ms": best(lambda: fel(grad)), "gauss_newton_ms": best(fel),
+            "ilc_p_ms": best(lambda: p_type.update(dU, phase_error(exp, log))),
+            "ilc_norm_optimal_ms": best(lambda: norm.update(dU, phase_error(exp, log), G,
+                                                            factor)),
+            "norm_optimal_setup_s": setup_s}
 
 
 def _cost_of(arm: str, config: str, best) -> dict:
@@ -268,11 +327,14 @@ def _cost_of(arm: str, config: str, best) -> dict:
 
 def cost_table(rows: list[dict]) -> str:
     lines = ["| robot | samples per cycle | simulating the cycle | gradient | gauss_newton | "
-             "ilc_p | ilc_norm_optimal |", "|---|---:|---:|---:|---:|---:|---:|"]
+             "ilc_p | ilc_norm_optimal | norm-optimal set-up, once [s] |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
+        setup = r.get("norm_optimal_setup_s")
         lines.append(f"| {r['robot']} | {r['samples']} | {r['simulation_ms']:.2f} | "
                      f"{r['gradient_ms']:.2f} | {r['gauss_newton_ms']:.2f} | "
-                     f"{r['ilc_p_ms']:.2f} | {r['ilc_norm_optimal_ms']:.2f} |")
+                     f"{r['ilc_p_ms']:.2f} | {r['ilc_norm_optimal_ms']:.2f} | "
+                     f"{'-' if setup is None else f'{setup:.1f}'} |")
     return "\n".join(lines)
 
 
@@ -286,16 +348,136 @@ def write_cost(out: Path) -> str:
     return md
 
 
-def figures(curves: dict, rob: dict | None) -> list[Path]:
+def walker_table(seeds: list[int], log) -> tuple[dict, dict]:
+    """Every learner on the five-link walker: per seed the summary's numbers, the torso's RMS
+    from its design and the legs' tracking RMS over the last cycle [rad]."""
+    results, curves = {}, {}
+    for robot, config in WALKER.items():
+        for learner in LEARNERS:
+            exp = load_experiment(CONFIGS / f"{config}.yaml",
+                                  overrides(config, learner) + ["walking.poincare=false"])
+            legs = [i for i, n in enumerate(exp.joints)
+                    if exp.law.tracking[i] and n not in exp.learned_joints]
+            build_s = None
+            if learner == "ilc_norm_optimal":  # once per known model, reused by every seed
+                t0 = time.perf_counter()
+                lifted_model(exp)
+                build_s = round(time.perf_counter() - t0, 2)
+            per_seed, fb_curves = [], []
+            for seed in seeds:
+                res = run_seed(exp, seed, cycles=WALKER_CYCLES)
+                s, w = res.summary, res.summary["walking"]
+                legs_rms = None
+                if "last_q_system" in res.traces:
+                    d = res.traces["last_q_system"][:, legs] - res.traces["last_q_forward"][:, legs]
+                    legs_rms = float(np.sqrt(np.mean(d ** 2)))
+                per_seed.append({"seed": seed, "converged_cycle": s["converged_cycle"],
+                                 "fb_initial": s["fb_initial"], "fb_final": s["fb_final"],
+                                 "fb_ratio": s["fb_ratio"], "diverged": s["diverged"],
+                                 "walked": w["walked"], "not_walking": w.get("reason"),
+                                 "torso_rms_rad": w.get("stabilized_rms_last_rad"),
+                                 "legs_rms_rad": legs_rms,
+                                 "ms_per_cycle": 1e3 * s["wall_s"] / max(1, s["cycles"])})
+                fb_curves.append([r["fb_abs_mean_error"] for r in res.rows])
+            learned = (exp.primitives.n_steps * exp.hybrid.walker.B.shape[1]
+                       if learner.startswith("ilc") else learned_numbers(exp, learner))
+            results[(robot, learner)] = {"config": config, "cycles": WALKER_CYCLES,
+                                         "learned_numbers": learned, "seeds": per_seed,
+                                         "lifted_model_s": build_s}
+            curves[(robot, learner)] = fb_curves
+            print(f"methods: {robot} {learner}: converged "
+                  f"{[p['converged_cycle'] for p in per_seed]}, ratio "
+                  f"{[round(p['fb_ratio'] or np.nan, 5) for p in per_seed]}, walked "
+                  f"{sum(p['walked'] for p in per_seed)}/{len(per_seed)}", file=log, flush=True)
+    return results, curves
+
+
+def walker_summary(results: dict) -> str:
+    lines = ["| robot | learner | walked | cycles to 5 % (median / worst) | final feedback [N m] "
+             "| final / first (median, worst) | torso from design / legs' tracking, last cycle "
+             "[rad] | computation per cycle [ms] | learned numbers |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for (robot, learner), r in results.items():
+        ps = r["seeds"]
+        conv = [p["converged_cycle"] for p in ps]
+        got = [c for c in conv if c is not None]
+        if len(got) == len(conv):
+            c = f"{int(np.median(conv))} / {max(conv)}"
+        else:
+            c = (f"{int(np.median(got))} / - ({len(conv) - len(got)} never)" if got
+                 else "never")
+        walked = [p for p in ps if p["walked"]]
+        ratios = [p["fb_ratio"] for p in walked if p["fb_ratio"] is not None] or [np.nan]
+        fb = np.mean([p["fb_final"] for p in walked]) if walked else np.nan
+        torso = np.mean([p["torso_rms_rad"] for p in walked]) if walked else np.nan
+        legs = np.mean([p["legs_rms_rad"] for p in walked]) if walked else np.nan
+        ms = np.median([p["ms_per_cycle"] for p in ps])
+        lines.append(f"| {robot} | {learner} | {len(walked)}/{len(ps)} | {c} | {fb:.3g} | "
+                     f"{np.median(ratios):.2g}, {max(ratios):.2g} | {torso:.2g} / {legs:.2g} | "
+                     f"{ms:.0f} | {r['learned_numbers']} |")
+    return "\n".join(lines)
+
+
+def walker_part(seeds: list[int], robust_seeds: int, jobs: int, out: Path, log,
+                robust: bool = True) -> str:
+    """The walker's table, its robustness scores and figures; returns the Markdown."""
+    t0 = time.perf_counter()
+    results, curves = walker_table(seeds, log)
+    md = [f"## Learners side by side on the physical five-link walker ({WALKER_CYCLES} cycles)",
+          "", walker_summary(results), ""]
+    rob = None
+    if robust:
+        config = CONFIGS / f"{WALKER['five-link walker']}.yaml"
+        rob = robustness(read_yaml(config), config, list(LEARNERS),
+                         list(WALKER_SCENARIOS.values()), list(range(robust_seeds)),
+                         WALKER_ROBUST_CYCLES,
+                         {lr: overrides(WALKER["five-link walker"], lr)[1:] for lr in LEARNERS},
+                         log, jobs)
+        md += [f"## Robustness scores (five-link walker, {WALKER_ROBUST_CYCLES} cycles per "
+               "point)", "", format_scores(rob), ""]
+        md += ["| scenario | values | unit | what |", "|---|---|---|---|"]
+        md += [f"| {s.name} | {', '.join(f'{v:g}' for v in s.values) or 'n/a'} | {s.unit} | "
+               f"{s.not_applicable and 'not applicable: ' + s.not_applicable or s.description} |"
+               for s in WALKER_SCENARIOS.values()]
+        md.append("")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "methods_walker.json").write_text(json.dumps(
+        {"table": [{"robot": rb, "learner": lr, **r, "curves": curves[(rb, lr)]}
+                   for (rb, lr), r in results.items()],
+         "robustness": rob, "seeds": seeds, "wall_s": round(time.perf_counter() - t0, 1)},
+        indent=1))
+    (out / "methods_walker.md").write_text("\n".join(md))
+    for path in figures(curves, rob, WALKER, "methods_walker_feedback.png",
+                        "methods_walker_robustness.png", "robustness, five-link walker"):
+        print(f"wrote {path}", file=log)
+    return "\n".join(md)
+
+
+def figures(curves: dict, rob: dict | None, robots: dict | None = None,
+            convergence: str = "methods_feedback_convergence.png",
+            scores: str = "methods_robustness.png",
+            title: str = "robustness, standard arm") -> list[Path]:
+    written = [convergence_figure(curves, robots or ARMS, convergence)]
+    if rob is not None:
+        written.append(scores_figure(rob, scores, title))
+    return written
+
+
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     FIGURES.mkdir(parents=True, exist_ok=True)
-    written = []
-    fig, axes = plt.subplots(1, len(ARMS), figsize=(4.2 * len(ARMS), 3.4))
-    for ax, arm in zip(np.atleast_1d(axes), ARMS):
+    return plt
+
+
+def convergence_figure(curves: dict, robots: dict, name: str) -> Path:
+    """Mean |error feedback| per cycle, mean and min-max over seeds, one panel per robot."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(robots), figsize=(4.2 * len(robots) + 1.0, 3.4))
+    for ax, arm in zip(np.atleast_1d(axes), robots):
         for learner in LEARNERS:
             runs = curves.get((arm, learner))
             if not runs:
@@ -311,30 +493,35 @@ def figures(curves: dict, rob: dict | None) -> list[Path]:
     np.atleast_1d(axes)[0].set_ylabel("mean |error feedback| [N m]")
     np.atleast_1d(axes)[-1].legend(fontsize=8)
     fig.tight_layout()
-    path = FIGURES / "methods_feedback_convergence.png"
+    path = FIGURES / name
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    written.append(path)
-    if rob is not None:
-        names = list(rob["scenarios"])
-        learners = list(rob["scores"])
-        S = np.array([[rob["scores"][lr][n] for n in names] for lr in learners])
-        fig, ax = plt.subplots(figsize=(7.5, 3.0))
-        im = ax.imshow(S, vmin=0, vmax=1, cmap="viridis", aspect="auto")
-        ax.set_xticks(range(len(names)), names, rotation=30)
-        ax.set_yticks(range(len(learners)), learners)
-        for i in range(len(learners)):
-            for j in range(len(names)):
-                ax.text(j, i, f"{S[i, j]:.2f}", ha="center", va="center",
-                        color="white" if S[i, j] < 0.6 else "black", fontsize=8)
-        fig.colorbar(im, ax=ax, label="score")
-        ax.set_title("robustness, standard arm")
-        fig.tight_layout()
-        path = FIGURES / "methods_robustness.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-    return written
+    return path
+
+
+def scores_figure(rob: dict, name: str, title: str) -> Path:
+    """The robustness scores as a learner x scenario map (n/a: not applicable)."""
+    plt = _pyplot()
+    names = list(rob["scenarios"])
+    learners = list(rob["scores"])
+    S = np.array([[np.nan if rob["scores"][lr][n] is None else rob["scores"][lr][n]
+                   for n in names] for lr in learners])
+    fig, ax = plt.subplots(figsize=(7.5, 3.0))
+    im = ax.imshow(S, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+    ax.set_xticks(range(len(names)), names, rotation=30)
+    ax.set_yticks(range(len(learners)), learners)
+    for i in range(len(learners)):
+        for j in range(len(names)):
+            na = np.isnan(S[i, j])
+            ax.text(j, i, "n/a" if na else f"{S[i, j]:.2f}", ha="center", va="center",
+                    color="black" if na or S[i, j] >= 0.6 else "white", fontsize=8)
+    fig.colorbar(im, ax=ax, label="score")
+    ax.set_title(title)
+    fig.tight_layout()
+    path = FIGURES / name
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -345,13 +532,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     ap.add_argument("--cost-only", action="store_true",
                     help="only the cost of one update (update_cost.md/json)")
+    ap.add_argument("--parts", default="arms,walker,cost",
+                    help="comma-separated: arms (tables, robustness, transfer), walker, cost")
+    ap.add_argument("--jobs", type=int, default=1, help="robustness points run at the same time")
     args = ap.parse_args(argv)
     log = sys.stderr
+    parts = {p.strip() for p in args.parts.split(",")}
     if args.cost_only:
-        print(write_cost(args.out))
-        return 0
+        parts = {"cost"}
     t0 = time.perf_counter()
     seeds = list(range(2 if args.quick else args.seeds))
+    if "walker" in parts:
+        print(walker_part(seeds, args.robust_seeds, args.jobs, args.out, log,
+                          robust=not args.quick))
+    if "arms" in parts:
+        arms_part(args, seeds, log)
+    if "cost" in parts:
+        print(write_cost(args.out))
+    print(f"\n({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+def arms_part(args, seeds: list[int], log) -> None:
+    """The arms' tables, robustness scores, transfer test and figures (methods.{md,json})."""
+    t0 = time.perf_counter()
     results, curves = table(seeds, log)
     md = ["## Learners side by side", "", summarize(results), ""]
     alle, _ = table(seeds, log, {"standard arm": "two_link_standard"},
@@ -364,7 +568,8 @@ def main(argv: list[str] | None = None) -> int:
         raw = read_yaml(config)
         rob = robustness(raw, config, list(LEARNERS), list(SCENARIOS.values()),
                          list(range(args.robust_seeds)), 150,
-                         {lr: overrides("two_link_standard", lr)[1:] for lr in LEARNERS}, log)
+                         {lr: overrides("two_link_standard", lr)[1:] for lr in LEARNERS}, log,
+                         args.jobs)
         md += ["## Robustness scores (standard arm)", "", format_scores(rob), ""]
         md += ["| scenario | values | unit | what |", "|---|---|---|---|"]
         md += [f"| {s.name} | {', '.join(f'{v:g}' for v in s.values)} | {s.unit} | "
@@ -385,9 +590,6 @@ def main(argv: list[str] | None = None) -> int:
     for path in figures(curves, rob):
         print(f"wrote {path}", file=log)
     print("\n".join(md))
-    print(write_cost(args.out))
-    print(f"\n({time.perf_counter() - t0:.0f} s)")
-    return 0
 
 
 if __name__ == "__main__":

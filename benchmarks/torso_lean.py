@@ -11,7 +11,8 @@ friction or torque is what rules a lean out. Prints one line per design and a su
 Usage::
 
     python benchmarks/torso_lean.py [--torso 0.1,0.2,0.3,0.4,0.5236] [--durations 0.4,0.5,0.6,0.8]
-        [--lengths 0.3,0.5,0.7,0.9] [--relaxed] [--no-verify] [--json out.json]
+        [--lengths 0.3,0.5,0.7,0.9] [--relaxed] [--no-verify] [--friction-margin 0.85]
+        [--normal-force-margin 0.05] [--json out.json]
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ def main() -> None:
     ap.add_argument("--durations", type=floats, default=[0.4, 0.5, 0.6, 0.8])
     ap.add_argument("--lengths", type=floats, default=[0.3, 0.5, 0.7, 0.9])
     ap.add_argument("--relaxed", action="store_true", help="friction 5, no effort limits")
+    ap.add_argument("--friction-margin", type=float, default=0.85)
+    ap.add_argument("--normal-force-margin", type=float, default=0.05)
     ap.add_argument("--no-verify", dest="verify", action="store_false")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
@@ -54,7 +57,9 @@ def main() -> None:
     for torso in args.torso:
         for T in args.durations:
             for L in args.lengths:
-                spec = gait_spec(raw, walker, settings, step_length=L, duration=T, torso=torso)
+                spec = gait_spec(raw, walker, settings, step_length=L, duration=T, torso=torso,
+                                 friction_margin=args.friction_margin,
+                                 normal_force_margin=args.normal_force_margin)
                 row = {"torso": torso, "duration_s": T, "step_length_m": L}
                 try:
                     gait = design_gait(walker, spec)

@@ -172,7 +172,7 @@ def figures(prefix: str, exp, curves: dict, log, mg: float) -> None:
     a2.axhline(0.6, color="r", ls="--", lw=0.8)
     a2.set_ylabel("|F_t| / F_n")
     a2.set_xlabel("t [s] (one cycle, two steps)")
-    a1.set_title(f"{name}: stance foot's ground reaction, learned gait")
+    a1.set_title(f"{name}: stance foot's force, learned gait", fontsize=10)
     fig.tight_layout()
     fig.savefig(f"{prefix}_grf.png", dpi=110)
     plt.close(fig)

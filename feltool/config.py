@@ -611,7 +611,8 @@ class LearningConfig(Strict):
 class ILCConfig(Strict):
     """Iterative learning control (learning.update ilc_p / ilc_norm_optimal): the learned
     feedforward is a torque per sample of the cycle, added to the known model's torque along the
-    initial RMP (feltool.ilc)."""
+    initial RMP (feltool.ilc); on a physical walker a motor torque per RMP sample, added to the
+    allocated command (feltool.ilc_walker)."""
 
     gain: NonNegFloat = Field(1.0, description="ilc_p: learning gain L of "
                               "u_{h+1} = Q(u_h + L e_h) [-] (error and input are torques).")
@@ -633,9 +634,11 @@ class MeasurementNoise(Strict):
     """Gaussian noise on what the robot measures (the feedback and the learner see it; the
     simulated plant moves on its true state)."""
 
-    q: NonNegFloat = Field(0.0, description="Standard deviation on the joint angles in [rad].")
+    q: NonNegFloat = Field(0.0, description="Standard deviation on the joint angles in [rad] "
+                           "(a physical walker: its pitch and joints; the base's position follows "
+                           "from the stance leg's kinematics).")
     v: NonNegFloat = Field(0.0, description="Standard deviation on the joint velocities in "
-                           "[rad/s].")
+                           "[rad/s] (a physical walker: as for q).")
 
 
 class ModelErrorConfig(Strict):
@@ -656,7 +659,8 @@ class DisturbanceConfig(Strict):
     measurement_noise: MeasurementNoise = Field(default_factory=MeasurementNoise,
                                                 description="Noise on the measured q, qdot.")
     torque_noise: NonNegFloat = Field(0.0, description="Standard deviation of Gaussian noise "
-                                      "added to every applied joint torque in [N m].")
+                                      "added to every applied joint (a walker: motor) torque in "
+                                      "[N m].")
     input_delay_steps: int = Field(0, ge=0, le=10_000, description="The plant receives each "
                                    "commanded torque this many control steps late [-].")
     model_error: ModelErrorConfig = Field(default_factory=ModelErrorConfig, description="The "

@@ -19,7 +19,8 @@ states are logged apart (``CycleLog.q_true``) for tests. The known model
 
 Every draw comes from the loop's ``rng``, a numpy Generator that the cycle runner seeds from
 (seed, cycle) before each cycle (:func:`feltool.ilc.cycle_runner`), so a resumed run draws the
-same noise.
+same noise. A physical walker gets the same disturbances through :class:`WalkerDisturbance`, a
+hook of its loop (:func:`feltool.ilc_walker.cycle_runner`).
 """
 
 from __future__ import annotations
@@ -40,8 +41,8 @@ if TYPE_CHECKING:
 
 def scaled_model(model: pin.Model, mass_scale: float, length_scale: float) -> pin.Model:
     """A copy of ``model`` with every body's mass and inertia times ``mass_scale`` and every
-    length times ``length_scale`` (joint placements, centres of mass; rotational inertia times
-    ``mass_scale * length_scale**2``)."""
+    length times ``length_scale`` (joint placements, frame placements such as a walker's feet,
+    centres of mass; rotational inertia times ``mass_scale * length_scale**2``)."""
     out = model.copy()
     for j in range(1, out.njoints):
         placement = out.jointPlacements[j]
@@ -51,6 +52,9 @@ def scaled_model(model: pin.Model, mass_scale: float, length_scale: float) -> pi
         out.inertias[j] = pin.Inertia(float(inertia.mass) * mass_scale,
                                       inertia.lever * length_scale,
                                       inertia.inertia * mass_scale * length_scale ** 2)
+    for frame in out.frames:
+        frame.placement = pin.SE3(frame.placement.rotation,
+                                  frame.placement.translation * length_scale)
     return out
 
 
@@ -115,6 +119,112 @@ class DisturbedLoop(ClosedLoop):
             self.buffer = np.array(saved["disturbance_buffer"], dtype=float)
 
 
+class WalkerDisturbance:
+    r"""The disturbances of the module docstring for a physical walker
+    (:class:`feltool.walking.PhysicalLoop`'s ``disturbance`` hook); the contact checks, the
+    touchdown and the fall check keep running on the true state.
+
+    * **Measurements.** The sensed coordinates (the pitch and every joint: all but the base's
+      translation) get the noise; the base's position and velocity are not sensed but follow
+      from the measured angles by the stance leg's kinematics in the known model (leg
+      odometry: :meth:`~feltool.walking.PhysicalWalker.complete`, the stance foot at the
+      origin).
+    * **Torques.** The commanded motor torques reach the plant ``input_delay_steps`` control
+      steps late, plus :math:`\sigma_\tau w`, :math:`w \sim \mathcal N(0, I)` per motor.
+    * **The inverse-dynamics error estimate** (``learning.error_estimate``) needs the walker's
+      acceleration: as measured, the plant's true acceleration plus what differentiating the
+      measured velocities adds to it, :math:`(n_{\dot q,k} - n_{\dot q,k-1}) / \Delta t`; its
+      inertia matrix is the known model's at the measured angles. The mechanical phase's
+      acceleration (part of the reference, computed by the controller) is the known model's
+      prediction at the measured state under the commanded torque instead: taken from the
+      differentiated velocities it makes the reference itself noisy, and at
+      :math:`\sigma_{\dot q}` = 0.003 rad/s the five-link walker's stance foot slid in its
+      second cycle (friction ratio 0.743 > 0.7).
+
+    Attributes:
+        rng: The Generator of the next draws (set by the cycle runner every cycle).
+        true_q, true_v: The plant's states at this cycle's control steps (for tests).
+        applied: The motor torques the plant received at this cycle's control steps [N m].
+    """
+
+    def __init__(self, walker, spec: DisturbanceConfig, dt: float):
+        self.walker, self.spec, self.dt = walker, spec, dt
+        nv = walker.walker.model.nv
+        self.sensed = np.ones(nv)
+        self.sensed[walker.base_v[:2]] = 0.0
+        self.rng: np.random.Generator = np.random.default_rng(0)
+        self.buffer: np.ndarray | None = None  # commanded motor torques not yet applied (d, k)
+        self.noise_v: np.ndarray | None = None  # the last measured minus true velocity
+        self._dv = np.zeros(nv)
+        self.true_q, self.true_v, self.applied = [], [], []
+
+    def start_cycle(self, rng: np.random.Generator) -> None:
+        """Draw the next cycle from ``rng``; the records start anew."""
+        self.rng = rng
+        self.true_q, self.true_v, self.applied = [], [], []
+
+    def measure(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the robot measures of the true state ``(q, v)``, in [rad], [m], [rad/s]."""
+        self.true_q.append(q.copy())
+        self.true_v.append(v.copy())
+        noise = self.spec.measurement_noise
+        nq = self.rng.normal(0.0, 1.0, len(q)) * noise.q * self.sensed
+        nv = self.rng.normal(0.0, 1.0, len(v)) * noise.v * self.sensed
+        qm, vm, _ = self.walker.complete(q + nq, v + nv, np.zeros_like(v))
+        error_v = vm - v
+        previous = error_v if self.noise_v is None else self.noise_v
+        self._dv = (error_v - previous) / self.dt
+        self.noise_v = error_v
+        return qm, vm
+
+    def apply(self, u: np.ndarray) -> np.ndarray:
+        """The motor torques the plant receives for the command ``u`` ``(k,)`` in [N m]."""
+        d = self.spec.input_delay_steps
+        if d:
+            if self.buffer is None:
+                self.buffer = np.repeat(u[None], d, axis=0)
+            delayed = self.buffer[0].copy()
+            self.buffer = np.vstack([self.buffer[1:], u[None]])
+        else:
+            delayed = u
+        applied = delayed + self.rng.normal(0.0, 1.0, len(u)) * self.spec.torque_noise
+        self.applied.append(applied)
+        return applied
+
+    def inertia(self, qm: np.ndarray) -> np.ndarray:
+        """The known model's joint-space inertia matrix at the measured ``qm``."""
+        c = self.walker.contact
+        M = pin.crba(c.model, c.data, qm)
+        return np.triu(M) + np.triu(M, 1).T
+
+    def acceleration(self, a: np.ndarray) -> np.ndarray:
+        """The measured acceleration for the plant's true ``a`` at this control step."""
+        return a + self._dv
+
+    def extra_state(self) -> dict[str, np.ndarray]:
+        """The delay buffer and the last velocity error, for checkpoints."""
+        out = {}
+        if self.buffer is not None:
+            out["disturbance_buffer"] = self.buffer.copy()
+        if self.noise_v is not None:
+            out["disturbance_noise_v"] = self.noise_v.copy()
+        return out
+
+    def restore_state(self, saved) -> None:
+        if "disturbance_buffer" in saved:
+            self.buffer = np.array(saved["disturbance_buffer"], dtype=float)
+        if "disturbance_noise_v" in saved:
+            self.noise_v = np.array(saved["disturbance_noise_v"], dtype=float)
+
+
+def walker_disturbance(exp: Experiment) -> WalkerDisturbance | None:
+    """A fresh walker disturbance (one per seed), or None without a ``disturbances:`` block."""
+    spec = exp.config.disturbances
+    if spec is None:
+        return None
+    return WalkerDisturbance(exp.hybrid.walker, spec, exp.config.dt)
+
+
 def disturbed_plant(exp: Experiment) -> Dynamics:
     """The plant under ``disturbances.model_error``: the known model's robot scaled (the known
     model itself untouched), or the experiment's plant when nothing is scaled."""
@@ -145,8 +255,10 @@ def problems(cfg: ExperimentConfig) -> list[tuple[str, str]]:
         out.append(("disturbances", "needs learning.step: per_cycle"))
     if cfg.backend == "compiled":
         out.append(("disturbances", "needs the pinocchio or casadi backend"))
-    if cfg.walking is not None or cfg.actuation is not None:
-        out.append(("disturbances", "not available for walkers or allocated motors yet"))
+    if (cfg.walking is not None and not cfg.walking.physical) or cfg.actuation is not None:
+        out.append(("disturbances", "not available for the pinned walker (impact: relabel or "
+                                    "rigid) or allocated motors; a physical walker "
+                                    "(walking.feet) has them"))
     if cfg.learning.model is not None:
         out.append(("disturbances", "cannot be combined with learning.model yet"))
     if cfg.events:
@@ -158,4 +270,5 @@ def problems(cfg: ExperimentConfig) -> list[tuple[str, str]]:
     return out
 
 
-__all__ = ["DisturbedLoop", "disturbed_loop", "disturbed_plant", "problems", "scaled_model"]
+__all__ = ["DisturbedLoop", "WalkerDisturbance", "disturbed_loop", "disturbed_plant", "problems",
+           "scaled_model", "walker_disturbance"]

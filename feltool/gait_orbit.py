@@ -156,8 +156,8 @@ def periodic_orbit(exp, x_star: np.ndarray) -> Orbit:
     model = exp.robot.model
     P, Pv, Pa = exp.primitives.desired(exp.theta_demo)
     log = hyb.run_cycle(exp.dynamics, x_star[:model.nq], x_star[model.nq:], P, Pv, Pa)
-    if log.fall:
-        raise RuntimeError(f"the fixed point does not walk: {log.fall}")
+    if log.fall:  # a fixed point that was found walking: only a changed world gets here
+        raise GaitDesignError(f"the gait's fixed point does not walk: {log.fall}")
     starts = [0] + [k for k, _, _ in log.impacts]
     counts = [b - a for a, b in zip(starts[:-1], starts[1:])]
     neutral = pin.neutral(model)
@@ -174,7 +174,7 @@ def periodic_orbit(exp, x_star: np.ndarray) -> Orbit:
 def orbit_config(raw: dict[str, Any], exp, orbit: Orbit) -> dict[str, Any]:
     """``raw`` with every ``samples`` demo replaced by the orbit's samples at the control rate
     (the last knot closes the period: the first sample again) and ``period_s`` the orbit's
-    cycle, ``samples_per_step`` control steps per step."""
+    cycle."""
     n = len(orbit.q)
     out = copy.deepcopy(raw)
     out["period_s"] = _num(n * exp.config.dt)
@@ -265,6 +265,6 @@ class GaitNotWalking(GaitDesignError):
 
 
 def _num(x: float) -> float:
-    """Ten significant digits: the orbit's feedback stays at ~1e-6 N m, not at rounding's
-    1e-12, which is far below anything the loop or learning resolves."""
+    """Ten significant digits: the feedback on the written orbit is then ~1e-7 N m rather than
+    rounding's 1e-12, far below anything the loop or learning resolves."""
     return float(f"{float(x):.10g}")

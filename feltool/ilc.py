@@ -114,12 +114,19 @@ class NormOptimalILC:
     weight_error: float
     weight_change: float
 
-    def update(self, dU: np.ndarray, E: np.ndarray, G: np.ndarray) -> np.ndarray:
-        """:math:`\\Delta u_{h+1} = \\Delta u_h - (G^\\top W_e G + W_u)^{-1} G^\\top W_e e_h`;
-        ``dU`` ``(n, n_u)``, ``E`` ``(n, n_e)``, ``G`` ``(n n_e, n n_u)`` sample-major."""
-        e = E.reshape(-1)
+    def factor(self, G: np.ndarray) -> tuple:
+        """The Cholesky factor of :math:`G^\\top W_e G + W_u` (symmetric positive definite),
+        for :meth:`update` when ``G`` stays the same from cycle to cycle."""
         H = self.weight_error * G.T @ G + self.weight_change * np.eye(G.shape[1])
-        step = linalg.cho_solve(linalg.cho_factor(H), self.weight_error * G.T @ e)  # H is SPD
+        return linalg.cho_factor(H)
+
+    def update(self, dU: np.ndarray, E: np.ndarray, G: np.ndarray,
+               factor: tuple | None = None) -> np.ndarray:
+        """:math:`\\Delta u_{h+1} = \\Delta u_h - (G^\\top W_e G + W_u)^{-1} G^\\top W_e e_h`;
+        ``dU`` ``(n, n_u)``, ``E`` ``(n, n_e)``, ``G`` ``(n n_e, n n_u)`` sample-major;
+        ``factor`` from :meth:`factor` (computed here when None)."""
+        factor = self.factor(G) if factor is None else factor
+        step = linalg.cho_solve(factor, self.weight_error * G.T @ E.reshape(-1))
         return dU - step.reshape(dU.shape)
 
 
@@ -225,10 +232,11 @@ def problems(cfg: ExperimentConfig) -> list[tuple[str, str]]:
         out.append(("learning.step", f"'{update}' runs per_cycle only"))
     if cfg.backend == "compiled":
         out.append(("backend", f"'{update}' needs the pinocchio or casadi backend"))
-    if cfg.walking is not None or cfg.actuation is not None:
-        out.append(("learning.update", f"'{update}' is not available for walkers or allocated "
-                                       "motors: ILC needs the same trajectory every cycle, and "
-                                       "a walker's steps end on a guard"))
+    if (cfg.walking is not None and not cfg.walking.physical) or cfg.actuation is not None:
+        out.append(("learning.update", f"'{update}' is not available for the pinned walker "
+                                       "(impact: relabel or rigid) or allocated motors; a "
+                                       "physical walker (walking.feet) has it, its torques "
+                                       "indexed by the RMP's sample"))
     if cfg.learning.model is not None:
         out.append(("learning.model", f"'{update}' cannot be combined with model learning"))
     return out
@@ -294,24 +302,32 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
                 state["dU"] = norm_opt.update(state["dU"], E, G)
         return _outcome(exp, log, Qd, theta)
 
+    names = [exp.joints[j] for j in inputs] if update in ILC_UPDATES else []
+    return with_state(run, state, dloop, names)
+
+
+def with_state(run: Callable, state: dict, disturbance, names: list[str]) -> Callable:
+    """``run`` with its learned sequence ``state["dU"]`` (one column per name in ``names``)
+    and its cycle count ``state["cycle"]`` exposed to checkpoints (``extra_state()``,
+    ``restore_state(saved)``, together with the ``disturbance``'s own state) and to the run's
+    params (``extra_params()``: ``ilc.<name>.u_ff_correction``, ``(n,)`` in [N m])."""
+
     def extra_state() -> dict[str, np.ndarray]:
         out = {"ilc_dU": state["dU"], "ilc_cycle": np.array(state["cycle"])}
-        if dloop is not None:
-            out.update(dloop.extra_state())
+        if disturbance is not None:
+            out.update(disturbance.extra_state())
         return out
 
     def restore_state(saved) -> None:
         if "ilc_dU" in saved:
             state["dU"] = np.array(saved["ilc_dU"], dtype=float)
             state["cycle"] = int(saved["ilc_cycle"])
-        if dloop is not None:
-            dloop.restore_state(saved)
+        if disturbance is not None:
+            disturbance.restore_state(saved)
 
     def extra_params() -> dict[str, np.ndarray]:
-        if update not in ILC_UPDATES:
-            return {}
-        return {f"ilc.{exp.joints[j]}.u_ff_correction": state["dU"][:, c].copy()
-                for c, j in enumerate(inputs)}
+        return {f"ilc.{name}.u_ff_correction": state["dU"][:, c].copy()
+                for c, name in enumerate(names)}
 
     run.extra_state, run.restore_state, run.extra_params = extra_state, restore_state, extra_params
     run.state = state
@@ -319,4 +335,4 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
 
 
 __all__ = ["ILC_UPDATES", "NormOptimalILC", "OWN_RUNNER", "PTypeILC", "channels", "cycle_runner",
-           "lifted_jacobian", "problems", "q_filter"]
+           "lifted_jacobian", "problems", "q_filter", "with_state"]

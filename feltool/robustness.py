@@ -9,8 +9,11 @@ scenario is the fraction of the range's values that are reached -- the style of 
 pendulum benchmark's robustness scores, applied to learners instead of controllers.
 
 ``feltool robustness CONFIG`` runs every learner x scenario (default ranges in
-:data:`SCENARIOS`, scaled to the config where they are relative) and writes
-``robustness.json`` and ``robustness.csv``.
+:data:`SCENARIOS`, scaled to the config where they are relative; a physical walker's in
+:data:`WALKER_SCENARIOS`) and writes ``robustness.json`` and ``robustness.csv``. A physical
+walker that stops walking (a contact violation or a fall) counts as not reaching the goal, like
+a diverged run. A scenario that does not apply to a robot (a walker's period: its steps are
+timed by its mechanics) gets no score and its reason.
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ class Scenario:
         values: The range, nominal value first.
         unit: Unit of the values.
         description: What it does to the plant.
+        not_applicable: Why the scenario has no meaning for the robot (no runs, no score), or
+            None.
     """
 
     name: str
@@ -50,6 +55,12 @@ class Scenario:
     values: tuple[float, ...]
     unit: str
     description: str
+    not_applicable: str | None = None
+
+    @property
+    def nominal(self) -> float:
+        """The undisturbed value: 1 for a scale factor, else 0."""
+        return 1.0 if self.unit == "x" else 0.0
 
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
@@ -73,6 +84,37 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     Scenario("period", "period", (1.0, 0.6, 0.8, 1.2, 1.5, 2.0), "x",
              "the motion's period scaled (rounded to whole samples), gains and rates kept"),
 )}
+
+
+# A physical walker's ranges (five-link walker: K_P 1500 on the pitch, 300 on the joints, 500
+# Hz): noise and torque ranges from no effect up to a noise-driven feedback of several N m (5 %
+# of a perturbed first cycle's ~20 N m is ~1 N m); delay in control steps as on the arm
+# (2-16 ms at 500 Hz); the model-error scales as on the arm.
+WALKER_SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
+    Scenario("noise_q", SCENARIOS["noise_q"].path, (0.0, 1e-5, 3e-5, 1e-4, 3e-4, 1e-3), "rad",
+             "Gaussian noise on the measured pitch and joint angles (sigma); the base's position "
+             "from the stance leg's kinematics"),
+    Scenario("noise_v", SCENARIOS["noise_v"].path, (0.0, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2), "rad/s",
+             "Gaussian noise on the measured pitch and joint velocities (sigma); the base's from "
+             "the stance leg's kinematics"),
+    Scenario("torque_noise", SCENARIOS["torque_noise"].path, (0.0, 0.03, 0.1, 0.3, 1.0, 3.0),
+             "N m", "Gaussian noise on every applied motor torque (sigma)"),
+    SCENARIOS["delay"], SCENARIOS["mass"],
+    Scenario("length", SCENARIOS["length"].path, SCENARIOS["length"].values, "x",
+             "the plant's lengths scaled, feet included (known model unchanged); the walker "
+             "starts with its stance foot on the ground"),
+    Scenario("period", "period", (), "x", SCENARIOS["period"].description,
+             "a physical walker's steps end at touchdown and its phase follows its centre of "
+             "mass (walking.phase: mechanical): the period is not a setting but a result of "
+             "the designed gait; a different speed is a different design (feltool gait)"),
+)}
+
+
+def scenarios_for(raw: dict[str, Any]) -> dict[str, Scenario]:
+    """The default scenarios of a raw config: a physical walker's (``walking.feet``), else the
+    arms'."""
+    walking = raw.get("walking") or {}
+    return WALKER_SCENARIOS if walking.get("feet") else SCENARIOS
 
 
 def overrides_for(raw: dict[str, Any], scenario: Scenario, value: float) -> list[str]:
@@ -118,53 +160,100 @@ def run_point(raw: dict[str, Any], source: Path | None, overrides: list[str], se
 def robustness(raw: dict[str, Any], source: Path | None, learners: list[str],
                scenarios: list[Scenario], seeds: list[int], cycles: int,
                learner_overrides: dict[str, list[str]] | None = None,
-               log=None) -> dict[str, Any]:
+               log=None, jobs: int = 1) -> dict[str, Any]:
     """Every learner x scenario: per value the seeds' outcomes, and the score.
+
+    A learner's undisturbed point (every scenario at its nominal value) is run once and shared
+    by its scenarios. A walker's Poincare analysis is left out (it does not enter the score).
 
     Args:
         raw: The experiment's raw config mapping.
         learner_overrides: Extra ``--set`` overrides per learner (its tuned settings).
         log: A stream for one progress line per point, or None.
+        jobs: Points run at the same time (processes).
 
     Returns:
         ``{"goal": GOAL, "tail": TAIL, "seeds", "cycles", "scenarios": {name: {...}},
-        "scores": {learner: {scenario: score}}, "points": [...]}``.
+        "scores": {learner: {scenario: score or None}}, "points": [...]}``.
     """
     learner_overrides = learner_overrides or {}
+    common = ["walking.poincare=false"] if raw.get("walking") else []
+    todo: dict[tuple, list[str]] = {}  # (learner, scenario or "nominal", value) -> overrides
+    for learner in learners:
+        for sc in scenarios:
+            for value in sc.values if sc.not_applicable is None else ():
+                key = _point_key(learner, sc, value)
+                todo.setdefault(key, [f"learning.update={learner}", *common,
+                                      *learner_overrides.get(learner, []),
+                                      *overrides_for(raw, sc, value)])
+    done = _run_points(raw, source, todo, seeds, cycles, log, jobs)
     points, scores = [], {}
     for learner in learners:
         scores[learner] = {}
         for sc in scenarios:
+            if sc.not_applicable is not None:
+                scores[learner][sc.name] = None
+                continue
             hits = []
             for value in sc.values:
-                sets = [f"learning.update={learner}", *learner_overrides.get(learner, []),
-                        *overrides_for(raw, sc, value)]
-                per_seed = run_point(raw, source, sets, seeds, cycles)
+                per_seed = done[_point_key(learner, sc, value)]
                 ok = all(p["reached"] for p in per_seed)
                 hits.append(ok)
                 points.append({"learner": learner, "scenario": sc.name, "value": value,
                                "reached": ok, "seeds": per_seed})
-                if log is not None:
-                    ratios = ", ".join("diverged" if p["diverged"] else f"{p['fb_ratio_tail']:.3g}"
-                                       for p in per_seed)
-                    print(f"robustness: {learner} {sc.name}={value:g}: "
-                          f"{'reached' if ok else 'not reached'} ({ratios})", file=log, flush=True)
             scores[learner][sc.name] = sum(hits) / len(hits)
     return {"goal": GOAL, "tail": TAIL, "seeds": seeds, "cycles": cycles,
             "scenarios": {s.name: {"path": s.path, "values": list(s.values), "unit": s.unit,
-                                   "description": s.description} for s in scenarios},
+                                   "description": s.description,
+                                   "not_applicable": s.not_applicable} for s in scenarios},
             "scores": scores, "points": points}
 
 
+def _point_key(learner: str, sc: Scenario, value: float) -> tuple:
+    return (learner, "nominal", 0.0) if value == sc.nominal else (learner, sc.name, value)
+
+
+def _run_points(raw, source, todo: dict[tuple, list[str]], seeds, cycles, log, jobs: int
+                ) -> dict[tuple, list[dict]]:
+    """:func:`run_point` for every point, ``jobs`` at a time; one progress line each."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    def report(key, per_seed):
+        if log is not None:
+            learner, name, value = key
+            ok = all(p["reached"] for p in per_seed)
+            ratios = ", ".join("stopped" if p["diverged"] else f"{p['fb_ratio_tail']:.3g}"
+                               for p in per_seed)
+            print(f"robustness: {learner} {name}={value:g}: "
+                  f"{'reached' if ok else 'not reached'} ({ratios})", file=log, flush=True)
+
+    done = {}
+    if jobs <= 1:
+        for key, sets in todo.items():
+            done[key] = run_point(raw, source, sets, seeds, cycles)
+            report(key, done[key])
+        return done
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = {key: pool.submit(run_point, raw, source, sets, seeds, cycles)
+                   for key, sets in todo.items()}
+        for key, fut in futures.items():
+            done[key] = fut.result()
+            report(key, done[key])
+    return done
+
+
 def format_scores(result: dict[str, Any]) -> str:
-    """The scores as a Markdown table (learners x scenarios)."""
+    """The scores as a Markdown table (learners x scenarios; n/a where a scenario does not
+    apply, the mean over those that do)."""
     names = list(result["scenarios"])
     lines = ["| learner | " + " | ".join(names) + " | mean |",
              "|---|" + "---:|" * (len(names) + 1)]
     for learner, row in result["scores"].items():
         vals = [row[n] for n in names]
-        lines.append(f"| {learner} | " + " | ".join(f"{v:.2f}" for v in vals)
-                     + f" | {np.mean(vals):.2f} |")
+        scored = [v for v in vals if v is not None]
+        lines.append(f"| {learner} | " + " | ".join("n/a" if v is None else f"{v:.2f}"
+                                                    for v in vals)
+                     + f" | {np.mean(scored):.2f} |")
     return "\n".join(lines)
 
 
@@ -192,22 +281,26 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     raw = apply_overrides(read_yaml(path), list(args.set or []))
     exp = build_experiment(raw, source=path)  # bad input fails here, before any run
     learners = _names(args.learners, LEARNERS, "--learners")
-    scenarios = [SCENARIOS[n] for n in _names(args.scenarios, tuple(SCENARIOS), "--scenarios")]
+    known = scenarios_for(raw)
+    scenarios = [known[n] for n in _names(args.scenarios, tuple(known), "--scenarios")]
     ranges = _ranges(args.range or [])
-    scenarios = [Scenario(s.name, s.path, ranges.get(s.name, s.values), s.unit, s.description)
-                 for s in scenarios]
+    scenarios = [Scenario(s.name, s.path, ranges.get(s.name, s.values), s.unit, s.description,
+                          s.not_applicable) for s in scenarios]
     seeds = parse_seeds(args.seeds) if args.seeds else exp.config.seed_list[:3]
     cycles = args.cycles or exp.config.sim.cycles
     out = args.out or Path("runs") / f"{exp.config.name}-robustness"
     if out.exists() and any(out.iterdir()):
         raise InputError(f"--out {out}: exists and is not empty; choose a new directory")
     result = robustness(raw, path, learners, scenarios, seeds, cycles,
-                        log=None if args.quiet else sys.stderr)
+                        log=None if args.quiet else sys.stderr, jobs=args.jobs)
     result["config"] = exp.config.name
     write(result, out)
     print(format_scores(result))
     print(f"\nscores: fraction of each range where every seed's feedback fell below "
           f"{GOAL:.0%} of its first cycle's; details in {out}/robustness.json")
+    for s in scenarios:
+        if s.not_applicable:
+            print(f"{s.name}: not applicable: {s.not_applicable}")
     return 0
 
 
@@ -260,9 +353,12 @@ def add_command(sub, make_sub) -> None:
                    "runs/<name>-robustness)")
     p.add_argument("--set", action="append", metavar="A.B.C=VALUE",
                    help="override a config field (repeatable)")
+    p.add_argument("--jobs", "-j", type=int, default=1, help="points run at the same time "
+                   "(processes; default 1)")
     p.add_argument("--quiet", "-q", action="store_true", help="print only the scores")
     p.set_defaults(func=cmd_robustness)
 
 
-__all__ = ["GOAL", "LEARNERS", "SCENARIOS", "Scenario", "add_command", "format_scores",
-           "overrides_for", "reached", "robustness", "run_point", "write"]
+__all__ = ["GOAL", "LEARNERS", "SCENARIOS", "Scenario", "WALKER_SCENARIOS", "add_command",
+           "format_scores", "overrides_for", "reached", "robustness", "run_point", "scenarios_for",
+           "write"]

@@ -21,6 +21,8 @@ from feltool.divergence import explain as explain_divergence
 from feltool.dynamics import Dynamics, make_dynamics
 from feltool.events import changed_model, plant_for_cycle
 from feltool.fel import FEL_UPDATES, feedforward
+from feltool.ilc import cycle_runner as ilc_cycle_runner
+from feltool.ilc_walker import cycle_runner as walker_cycle_runner
 from feltool.motion import Motion, varying_phase
 from feltool.observers import Callback, SeedCheckpoints, SeedRecord
 from feltool.phase import PhaseSamples
@@ -208,6 +210,10 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
         return compiled_runner(exp, Motion(exp, continuous=per_step) if moving else None,
                                theta0)
     if exp.hybrid is not None:
+        if exp.config.walking is not None and exp.config.walking.physical and (
+                exp.config.learning.update not in FEL_UPDATES
+                or exp.config.disturbances is not None):
+            return walker_cycle_runner(exp, theta0, seed)  # ILC, baseline, disturbances
         return lambda theta, q, v, plant, theta_m=None: _hybrid_cycle(exp, theta, q, v, plant)
     loops: dict[int, ClosedLoop] = {}
 
@@ -222,8 +228,6 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
         return loops[id(plant)]
 
     if exp.config.learning.update not in FEL_UPDATES or exp.config.disturbances is not None:
-        from feltool.ilc import cycle_runner as ilc_cycle_runner
-
         return ilc_cycle_runner(exp, theta0, seed, loop_for)  # ILC, baseline, disturbances
     if exp.model_learner is not None:
         return lambda theta, q, v, plant, theta_m: _model_cycle(exp, theta, q, v, theta_m,
@@ -307,20 +311,19 @@ def _per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop,
     return out
 
 
-def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> CycleOutcome:
+def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics,
+                  loop=None, learn: bool = True) -> CycleOutcome:
     """One cycle of the hybrid loop (walkers, allocated motors), then one update (eq. 3.6);
-    the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d."""
+    the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d. ``loop``: the
+    loop to run (default ``exp.hybrid``; a disturbed or ILC copy); ``learn`` False: no update."""
     P, Pv, Pa = exp.primitives.desired(theta)
-    log = exp.hybrid.run_cycle(plant, q, v, P, Pv, Pa)
+    log = (loop or exp.hybrid).run_cycle(plant, q, v, P, Pv, Pa)
     theta_next = theta
-    if log.fall is None and exp.learner.n_learned:
+    if learn and log.fall is None and exp.learner.n_learned:
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
         J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs,
                                  samples=getattr(log, "phase_index", None))
-        E = _impact_masked(exp, log)
-        if exp.config.learning.error_estimate == "inverse_dynamics" and \
-                getattr(log, "inertial", None) is not None:
-            E = E + _impact_masked(exp, log, log.inertial)
+        E = error_torques(exp, log)
         A = getattr(log, "allocation", None)
         if exp.config.learning.error_space == "motors" and A is not None and len(A):
             theta_next = _motor_step(exp, theta, A, J, E)
@@ -332,6 +335,17 @@ def _hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics) -> 
         out.contact = contact_metrics(log, exp)
         out.limit_hits = (np.zeros(len(exp.joints), int), _motor_hits(exp, log))
     return out
+
+
+def error_torques(exp: Experiment, log) -> np.ndarray:
+    """A walker's cycle's learning signal ``(n, nv)`` in generalized forces [N m]: the error
+    feedback, plus the inertial term with ``learning.error_estimate: inverse_dynamics``, the
+    samples of ``learning.impact_window_s`` left out."""
+    E = _impact_masked(exp, log)
+    if exp.config.learning.error_estimate == "inverse_dynamics" and \
+            getattr(log, "inertial", None) is not None:
+        E = E + _impact_masked(exp, log, log.inertial)
+    return E
 
 
 def _motor_step(exp: Experiment, theta: np.ndarray, A: np.ndarray, J: np.ndarray,

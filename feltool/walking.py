@@ -289,6 +289,13 @@ class PhysicalLoop:
         #: feedback reference (and the mechanical phase) follows these samples (a designed
         #: gait) while their forward trajectory, the feedforward's, is their learned RMP
         self.reference: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # -- hooks of the learner comparison (feltool.ilc_walker, feltool.disturbances) --------
+        #: ``(n, k)`` motor torques [N m] added to the command at each control step's RMP
+        #: sample (``WalkLog.phase_index``): ILC's learned feedforward, or None
+        self.motor_feedforward: np.ndarray | None = None
+        #: Plant-only disturbances (:class:`feltool.disturbances.WalkerDisturbance`), or None:
+        #: the controller and the learner see its measurements, the plant gets its torques
+        self.disturbance = None
 
     def _referenced(self, P: np.ndarray, Pv: np.ndarray, Pa: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -336,6 +343,8 @@ class PhysicalLoop:
                 if not clock and len(impacts) >= W.steps_per_cycle:
                     break
                 k = m
+                dist = self.disturbance  # the controller's view: qm, vm (measured); q, v true
+                qm, vm = (q, v) if dist is None else dist.measure(q, v)
                 # a late touchdown holds the step's last sample (its segment of the cycle's
                 # samples; clock: the cycle's last), never the next step's post-impact samples
                 s_idx = len(impacts) % W.steps_per_cycle
@@ -345,12 +354,12 @@ class PhysicalLoop:
                 labels[k] = label
                 if W.phase == "mechanical":
                     jj, p, pv, pa, rp, rpv, rpa = self._mechanical(
-                        q, v, P, Pv, Pa, len(impacts), label, (Rq, Rv, Ra), phase_acc)
+                        qm, vm, P, Pv, Pa, len(impacts), label, (Rq, Rv, Ra), phase_acc)
                 else:
                     p, pv, pa, rp, rpv, rpa = P[jj], Pv[jj], Pa[jj], Rq[jj], Rv[jj], Ra[jj]
                 index[k] = jj
                 qd, vd, ad = W.complete(*W.labelled(p, pv, pa, label))
-                Q[k], V[k], Qd[k], Vd[k], Ad[k] = q, v, qd, vd, ad
+                Q[k], V[k], Qd[k], Vd[k], Ad[k] = qm, vm, qd, vd, ad
                 m += 1
                 if self.reference:
                     qr, vr, ar = W.complete(*W.labelled(rp, rpv, rpa, label))
@@ -358,9 +367,11 @@ class PhysicalLoop:
                     qr, vr, ar = qd, vd, ad
                 r, rd = self.law.references(qr[None], vr[None])
                 Ref[k] = r[0]
-                U[k], Urows[k], Uerr[k] = self.law.terms(q, v, r[0], rd[0], self.error_rows)
-                Alloc[k] = W.allocation_matrix(q)
+                U[k], Urows[k], Uerr[k] = self.law.terms(qm, vm, r[0], rd[0], self.error_rows)
+                Alloc[k] = W.allocation_matrix(qm)
                 u = Alloc[k] @ (self.known.inverse(qd, vd, ad) + U[k])
+                if self.motor_feedforward is not None:
+                    u = u + self.motor_feedforward[jj]
                 over = np.abs(u) > W.checks.effort
                 if over.any() and W.checks.torques != "ignore":
                     hits += over
@@ -373,16 +384,19 @@ class PhysicalLoop:
                             f"its effort limit {W.checks.effort[i]:.4g} N m "
                             "(sim.torque_limits: report; saturate clips it)", "torque")
                 Tau[k] = u
-                tau = W.B @ u
+                tau = W.B @ (u if dist is None else dist.apply(u))
                 # the inertial part of the feedforward's error, M (a_r - a): what the feedback
                 # has not (yet) produced of the reference's acceleration (PhysicalLoop doc)
                 M = pin.crba(contact.model, contact.data, q)
                 M = np.triu(M) + np.triu(M, 1).T
-                now = contact.stance(q, v, tau, W.stance)
-                Inert[k] = M @ (ar - now.a)
+                a = a_phase = contact.stance(q, v, tau, W.stance).a
+                if dist is not None:  # as measured: the known model's M at qm, a measured;
+                    M, a = dist.inertia(qm), dist.acceleration(a)  # the phase's: predicted
+                    a_phase = W.contact.stance(qm, vm, W.B @ u, W.stance).a
+                Inert[k] = M @ (ar - a)
                 if W.phase == "mechanical":  # the phase's acceleration for the next step,
                     # from the (known model's) centre of mass's acceleration now
-                    phase_acc = self._phase_acceleration(W.com_x(q, v, now.a)[2])
+                    phase_acc = self._phase_acceleration(W.com_x(qm, vm, a_phase)[2])
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
                 ended = False
                 for i_sub in range(self.substeps):

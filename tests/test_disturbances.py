@@ -157,3 +157,130 @@ def test_model_error_scales_the_plant_by_the_scaling_laws_and_leaves_the_model()
         np.testing.assert_allclose(gs, 1.5 * 0.8 * g, atol=1e-12)
     scaled = scaled_model(model, 2.0, 1.0)
     assert sum(float(i.mass) for i in scaled.inertias) == 2.0 * sum(masses)
+
+
+# -- the physical walker (feltool.disturbances.WalkerDisturbance) -------------------------------
+FIVE_LINK = CONFIGS / "gaits" / "five_link_walker.yaml"
+
+
+def _walker_cycle(sets: list[str], seed: int = 0):
+    """One cycle of the five-link walker through its cycle runner: (exp, run, outcome, log)."""
+    from feltool.seed import _cycle_runner
+
+    exp = load_experiment(FIVE_LINK, ["walking.poincare=false", *sets])
+    theta = exp.initial_parameters(seed)
+    P, Pv, _ = exp.primitives.desired(theta)
+    q, v = exp.hybrid.initial_state(P, Pv)
+    run = _cycle_runner(exp, theta, seed)
+    out = run(theta, q, v, exp.dynamics)
+    assert out.fall is None
+    return exp, run, out, out.trace()[0]
+
+
+def test_walker_learner_sees_the_noisy_measurements_and_the_plant_the_true_state():
+    """The walker's feedback, allocation, inertial error term and FEL's update come from the
+    measurements (angles and rates with noise, the base from the stance leg's kinematics); the
+    plant moves on its true state under the torques it received. ``walking.phase: touchdown``
+    (one cycle), so that the references do not depend on the measured state."""
+    from feltool.seed import _motor_step, error_torques
+
+    exp, run, out, log = _walker_cycle(["walking.phase=touchdown",
+                                        "disturbances.measurement_noise.q=0.001",
+                                        "disturbances.measurement_noise.v=0.01"])
+    dist, W = run.loop.disturbance, exp.hybrid.walker
+    Qt, Vt = np.array(dist.true_q), np.array(dist.true_v)
+    sensed = [exp.joints.index(n) for n in ("base_pitch", "left_hip", "left_knee", "right_hip",
+                                             "right_knee")]
+    dq, dv = log.q[:, sensed] - Qt[:, sensed], log.v[:, sensed] - Vt[:, sensed]
+    assert 0.8e-3 < dq.std() < 1.2e-3 and abs(dq.mean()) < 2e-4
+    assert 0.8e-2 < dv.std() < 1.2e-2
+    # the base is not sensed: leg odometry puts the known model's stance foot at the origin
+    for k in range(0, len(log.q), 37):
+        p, pv = W.contact.foot_state(log.q[k], log.v[k], "left")
+        assert np.abs(p).max() < 1e-9 and np.abs(pv).max() < 1e-9
+    assert np.abs(log.q[:, :2] - Qt[:, :2]).max() > 1e-4
+    # the feedback is the PD law (closed form) of the measurements against the references
+    P, Pv, Pa = exp.primitives.desired(exp.initial_parameters(0))
+    Rq, Rv, Ra = exp.hybrid._referenced(P, Pv, Pa)
+    kp = np.array([exp.config.joints[exp.joints[j]].gains.kp for j in sensed])
+    kd = np.array([exp.config.joints[exp.joints[j]].gains.kd for j in sensed])
+    for k in range(len(log.q)):
+        j, s = log.phase_index[k], log.stance[k]
+        qr, vr, ar = W.complete(*W.labelled(Rq[j], Rv[j], Ra[j], s))
+        pd = kp * (qr[sensed] - log.q[k, sensed]) + kd * (vr[sensed] - log.v[k, sensed])
+        np.testing.assert_allclose(log.u_fb[k, sensed], pd, atol=1e-9)
+        pd_true = kp * (qr[sensed] - Qt[k, sensed]) + kd * (vr[sensed] - Vt[k, sensed])
+        assert np.abs(pd - pd_true).max() > 0.1  # kp 1e-3 + kd 1e-2: 1.5-6 N m per joint
+        if k % 50 == 0:
+            # the allocation is the known model's at the measurement (A B = I)
+            A = log.allocation[k]
+            np.testing.assert_allclose(A @ W.B, np.eye(4), atol=1e-9)
+            np.testing.assert_allclose(A, W.allocation_matrix(log.q[k]), atol=1e-12)
+            assert np.abs(A - W.allocation_matrix(Qt[k])).max() > 1e-6
+            # the inertial term: known M at the measurement, the plant's acceleration under
+            # the applied torques plus the differentiated velocity noise
+            a = W.contact.stance(Qt[k], Vt[k], W.B @ dist.applied[k], "left").a
+            noise = log.v - Vt
+            a_measured = a + (noise[k] - noise[max(k - 1, 0)]) / exp.config.dt
+            M = pin.crba(W.contact.model, W.contact.model.createData(), log.q[k])
+            M = np.triu(M) + np.triu(M, 1).T
+            np.testing.assert_allclose(log.inertial[k], M @ (ar - a_measured), atol=1e-6)
+    # FEL's update is the one of these measured arrays
+    theta = exp.initial_parameters(0)
+    _, *derivs = exp.hybrid.jacobian_derivatives(log)
+    J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs,
+                             samples=log.phase_index)
+    np.testing.assert_allclose(out.theta_next, _motor_step(exp, theta, log.allocation, J,
+                                                           error_torques(exp, log)), atol=1e-12)
+    assert np.abs(out.theta_next - theta).max() > 1e-6
+    # the plant moved on the true states under the applied torques (steps without touchdown)
+    touch = {k for k, _, _ in log.impacts}
+    for k in range(0, len(Qt) - 1, 23):
+        if k + 1 in touch:
+            continue
+        q1, v1 = exp.hybrid._rk4(W.contact, Qt[k], Vt[k], W.B @ dist.applied[k], exp.config.dt)
+        q1, v1 = W.contact.hold(q1, v1, "left", np.zeros(2))
+        np.testing.assert_allclose(q1, Qt[k + 1], atol=1e-10)
+        np.testing.assert_allclose(v1, Vt[k + 1], atol=1e-8)
+
+
+def test_walker_delay_and_torque_noise_reach_the_motors():
+    exp, run, out, log = _walker_cycle(["disturbances.input_delay_steps=2",
+                                        "disturbances.torque_noise=0.3"], seed=1)
+    dist = run.loop.disturbance
+    applied = np.array(dist.applied)
+    np.testing.assert_allclose(log.q, np.array(dist.true_q), atol=1e-9)  # no sensor noise
+    w = applied[2:] - log.tau[:-2]  # the command two control steps earlier, plus the noise
+    assert 0.25 < w.std() < 0.35 and abs(w.mean()) < 0.05
+    assert np.abs(applied[:2] - log.tau[0]).max() < 5 * 0.3  # the first command, held
+    # the same generator draws the same disturbances
+    _, run2, _, log2 = _walker_cycle(["disturbances.input_delay_steps=2",
+                                      "disturbances.torque_noise=0.3"], seed=1)
+    np.testing.assert_array_equal(np.array(run2.loop.disturbance.applied), applied)
+    np.testing.assert_array_equal(log2.q, log.q)
+
+
+def test_walker_model_error_scales_the_feet_and_stands_the_plant_on_its_foot():
+    from feltool.disturbances import disturbed_plant
+    from feltool.ilc_walker import on_ground
+
+    exp, run, out, log = _walker_cycle(["disturbances.model_error.length_scale=1.2"])
+    plant = disturbed_plant(exp)
+    W = exp.hybrid.walker
+    known, scaled = W.contact, W.contact_for(plant.model)
+    q = pin.neutral(plant.model)
+    q[exp.joints.index("left_knee")] = 0.3
+    for foot in ("left", "right"):  # a foot's position scales with the lengths
+        np.testing.assert_allclose(scaled.foot_state(q, 0 * q, foot)[0],
+                                   1.2 * known.foot_state(q, 0 * q, foot)[0], atol=1e-12)
+    assert plant.model is not exp.dynamics.model
+    assert exp.hybrid.walker.walker.model is exp.dynamics.model  # the known model unchanged
+    # the designed start stands on the scaled walker's foot: at the origin, at rest
+    q0 = run.loop.disturbance.true_q[0]
+    v0 = run.loop.disturbance.true_v[0]
+    p, pv = scaled.foot_state(q0, v0, "left")
+    assert np.abs(p).max() < 1e-9 and np.abs(pv).max() < 1e-9
+    P, Pv, _ = exp.primitives.desired(exp.initial_parameters(0))
+    qs, vs = on_ground(exp, plant, *exp.hybrid.initial_state(P, Pv))
+    np.testing.assert_allclose(qs, q0, atol=1e-12)
+    assert out.contact["step_length"] > 0.45  # longer legs, longer steps (design: 0.40 m)

@@ -158,12 +158,15 @@ def test_cli_verifies_closes_and_refuses(tmp_path, capsys):
 
     from feltool.cli import main
 
-    out = tmp_path / "gait.yaml"
+    out, html = tmp_path / "gait.yaml", tmp_path / "walk.html"
     assert main(["gait", str(compass_file(tmp_path)), "--step-length", "0.4", "--knots", "24",
-                 "--verify-steps", "4", "--out", str(out), "--no-progress"]) == 0
+                 "--verify-steps", "4", "--out", str(out), "--html", str(html),
+                 "--no-progress"]) == 0
     text = capsys.readouterr().out
-    for word in ("walked 4 steps: yes", "spectral radius", "the loop's periodic orbit"):
+    for word in ("walked 4 steps: yes", "spectral radius", "the loop's periodic orbit",
+                 f"walk: {html}"):
         assert word in text
+    assert "designed gait, 4 steps" in html.read_text()  # the verified walk, one clip
     head = out.read_text().splitlines()[3]
     assert head.startswith("# In feltool's walker: walked 4 steps")
     config = yaml.safe_load(out.read_text())
