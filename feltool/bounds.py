@@ -9,6 +9,10 @@ and ``docs/configuration.md`` lists them.
 
 from __future__ import annotations
 
+from collections import Counter
+
+from feltool.errors import InputError
+
 # -- the YAML file -------------------------------------------------------------------------------
 #: Largest config file in [bytes] (a config is a few kB; a sweep grid a few more).
 MAX_CONFIG_BYTES = 1 << 20
@@ -47,3 +51,29 @@ MAX_DAMPING = 1.0e6         # Levenberg-Marquardt damping [-]
 
 #: Fraction of the available memory a planned run may use (see :mod:`feltool.memory`).
 MEMORY_FRACTION = 0.8
+
+
+def parse_seeds(spec: str) -> list[int]:
+    """``0-19`` | ``0,3,7`` | ``5`` (a single seed) -> a sorted list of distinct seeds, at most
+    :data:`MAX_SEEDS` of them (counted before any list is built)."""
+    ranges: list[tuple[int, int]] = []
+    try:
+        for part in spec.split(","):
+            part = part.strip()
+            lo, hi = (int(x) for x in part.split("-", 1)) if "-" in part else (int(part),) * 2
+            if hi < lo or lo < 0:
+                raise ValueError
+            ranges.append((lo, hi))
+    except ValueError:
+        raise InputError(f"--seeds: cannot read '{spec}'; use e.g. 0-19, 0,3,7 or 5") from None
+    count = sum(hi - lo + 1 for lo, hi in ranges)
+    if count > MAX_SEEDS:
+        raise InputError(f"--seeds: '{spec}' is {count} seeds; at most {MAX_SEEDS} per run")
+    if max(hi for _, hi in ranges) > MAX_SEED:
+        raise InputError(f"--seeds: a seed may be at most {MAX_SEED} (2^63 - 1)")
+    seeds = [s for lo, hi in ranges for s in range(lo, hi + 1)]
+    repeated = sorted(s for s, n in Counter(seeds).items() if n > 1)
+    if repeated:
+        raise InputError(f"--seeds: seed {', '.join(map(str, repeated[:10]))} given more than "
+                         f"once in '{spec}'; each seed runs once")
+    return sorted(seeds)

@@ -15,40 +15,12 @@ import os
 import signal
 import sys
 import time
-from collections import Counter
 from pathlib import Path
 
 from feltool import __version__
+from feltool.bounds import parse_seeds
 from feltool.checkpoint import Interrupted
 from feltool.errors import FeltoolError, InputError
-
-
-def parse_seeds(spec: str) -> list[int]:
-    """``0-19`` | ``0,3,7`` | ``5`` (a single seed) -> a sorted list of distinct seeds, at most
-    :data:`~feltool.bounds.MAX_SEEDS` of them (counted before any list is built)."""
-    from feltool.bounds import MAX_SEED, MAX_SEEDS
-
-    ranges: list[tuple[int, int]] = []
-    try:
-        for part in spec.split(","):
-            part = part.strip()
-            lo, hi = (int(x) for x in part.split("-", 1)) if "-" in part else (int(part),) * 2
-            if hi < lo or lo < 0:
-                raise ValueError
-            ranges.append((lo, hi))
-    except ValueError:
-        raise InputError(f"--seeds: cannot read '{spec}'; use e.g. 0-19, 0,3,7 or 5") from None
-    count = sum(hi - lo + 1 for lo, hi in ranges)
-    if count > MAX_SEEDS:
-        raise InputError(f"--seeds: '{spec}' is {count} seeds; at most {MAX_SEEDS} per run")
-    if max(hi for _, hi in ranges) > MAX_SEED:
-        raise InputError(f"--seeds: a seed may be at most {MAX_SEED} (2^63 - 1)")
-    seeds = [s for lo, hi in ranges for s in range(lo, hi + 1)]
-    repeated = sorted(s for s, n in Counter(seeds).items() if n > 1)
-    if repeated:
-        raise InputError(f"--seeds: seed {', '.join(map(str, repeated[:10]))} given more than "
-                         f"once in '{spec}'; each seed runs once")
-    return sorted(seeds)
 
 
 def _positive_int(text: str) -> int:

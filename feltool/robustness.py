@@ -273,7 +273,7 @@ def write(result: dict[str, Any], out: Path) -> None:
 
 def cmd_robustness(args: argparse.Namespace) -> int:
     """``feltool robustness CONFIG``: scores of every learner x scenario."""
-    from feltool.cli import parse_seeds
+    from feltool.bounds import parse_seeds
     from feltool.config import apply_overrides, read_yaml
     from feltool.experiment import build_experiment, resolve_config_path
 

@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.cli import parse_seeds
+from feltool.bounds import parse_seeds
 from feltool.config import Strict, parse_config, read_yaml
 from feltool.errors import ConfigError, InputError, RobotError
 from feltool.experiment import reduce_robot
