@@ -111,21 +111,21 @@ class FeedbackLaw:
         output (for a frame angle: its torque about the axis), and the joint torques of the
         controllers in ``error_rows`` (the learning signal). A linear controller acts on its own
         joint; a frame angle's torque acts through :math:`j_y^\\top`."""
-        return feedback(NUMPY, self, q, v, r, rd, error_rows,
+        return feedback(NUMPY, self, q, v, r, rd, error_rows, self.frames and
                         {row: f.value_and_jacobian for row, f in self.frames.items()})
 
     def references(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """References :math:`r, \\dot r`, each ``(n, nv)``, for desired trajectories ``(n, nv)``."""
-        tracked, held = self._reference_rows()
+        tracked, held = self.reference_rows()
         return q_d @ tracked.T + held, v_d @ tracked.T
 
     def reference(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`references` at one sample: :math:`r, \\dot r` ``(nv,)`` for the desired
         state ``q_d, v_d`` ``(nv,)`` (the same numbers, without the 2-D temporaries)."""
-        tracked, held = self._reference_rows()
+        tracked, held = self.reference_rows()
         return tracked @ q_d + held, tracked @ v_d
 
-    def _reference_rows(self) -> tuple[np.ndarray, np.ndarray]:
+    def reference_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """C with only the tracking rows, and the stabilizing rows' targets (0 elsewhere):
         :math:`r = C_{track} q_d + r_{held}`."""
         if getattr(self, "_tracked", None) is None:

@@ -185,7 +185,7 @@ def fall_reason(q: np.ndarray, v: np.ndarray, fall_row: np.ndarray | None,
                 fall_max: float) -> str | None:
     """Why a walker fell (a non-finite state, or ``|fall_row @ q| > fall_max`` in [rad]), or
     None. Shared by the pinned and the physical walker."""
-    if not math.isfinite(q.sum() + v.sum()):  # a NaN or an infinity anywhere
+    if not math.isfinite(sum(q.tolist()) + sum(v.tolist())):  # a NaN or infinity anywhere
         return "the state became non-finite"
     if fall_row is not None:
         angle = float(fall_row @ q)

@@ -454,7 +454,8 @@ def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next,
              weight: np.ndarray | None = None) -> CycleOutcome:
     """The cycle's metrics: means over its steps, each weighted by the phase it covers
     (``weight``, :class:`~feltool.phase.PhaseSamples`; None: plain means)."""
-    R, _ = exp.law.references(Qd, Qd)
+    tracked, held = exp.law.reference_rows()
+    R = Qd @ tracked.T + held
     controlled = exp.law.tracking | exp.law.stabilizing
     nv = log.q_end.shape[0]
     # a walker's cycle that stopped (not walking) before its first sample logs no rows: its
@@ -466,15 +467,17 @@ def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next,
     mean = lambda X: average(np.abs(X)) if len(X) else np.zeros(nv)  # noqa: E731
     with np.errstate(all="ignore"):
         err = np.abs(wrap(R - exp.law.quantity(log.q)))[:, controlled]
+        u_fb = mean(log.u_fb)
+        u_rows = u_fb if log.u_rows is log.u_fb else mean(log.u_rows)
         return CycleOutcome(
-            theta_next, log.q_end, log.v_end, mean(log.u_fb),
+            theta_next, log.q_end, log.v_end, u_fb,
             np.sqrt(average((Qd - log.q) ** 2)) if len(log.q) else np.zeros(nv),
             float(err.max()) if err.size else 0.0,
             float(np.abs(log.v).max()) if log.v.size else 0.0,
             bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
                  and np.all(np.isfinite(log.q_end))),
             lambda: (log, Qd),
-            float(mean(log.u_rows)[exp.law.stabilizing].sum()),
+            float(u_rows[exp.law.stabilizing].sum()),
             float(mean(log.u_err).sum()),
             limit_hits=getattr(log, "limit_hits", None))
 

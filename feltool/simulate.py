@@ -135,9 +135,9 @@ class ClosedLoop:
         lim = self.limits
         step = stepper(NUMPY, self.dynamics.forward, self.dt / self.substeps, self.substeps,
                        self.integrator == "semi_implicit_euler", lim)
-        for k in range(n):
-            X[k, :nv], X[k, nv:] = q, v
-            q, v = step(q, v, F[k] - SK @ X[k])
+        for x, f in zip(X, F):
+            x[:nv], x[nv:] = q, v
+            q, v = step(q, v, f - SK @ x)
         U = B - X @ K.T
         log = CycleLog(X[:, :nv], X[:, nv:], U, q, v, U, U * self.error_rows)
         if lim is not None:

@@ -58,9 +58,9 @@ class PinocchioDynamics:
         n, nv = len(Q), self.nv
         tau, D = np.empty((n, nv)), np.empty((n, 3, nv, nv))
         model, data, derivatives = self.model, self.data, pin.computeRNEADerivatives
-        for k in range(n):  # (the returned matrices are views into data: copied at once)
-            D[k] = derivatives(model, data, Q[k], V[k], A[k])
-            tau[k] = data.tau
+        for q, v, a, d, t in zip(Q, V, A, D, tau):  # (views into data: copied at once)
+            d[...] = derivatives(model, data, q, v, a)
+            t[...] = data.tau
         M = D[:, 2]
         M = np.triu(M) + np.swapaxes(np.triu(M, 1), 1, 2)  # Pinocchio fills the upper triangle
         return tau, D[:, 0], D[:, 1], M
