@@ -318,9 +318,14 @@ def _interp_index(xc, x):
     return f + (xc >= x[ns - 1]) * (ns - 1)
 
 
-def _hat(position, n: int):
-    """Weights of linear interpolation at a fractional sample ``position`` over n samples."""
-    return ca.fmax(0.0, 1.0 - ca.fabs(position - ca.DM(np.arange(n))))
+def _lerp(M, position, n: int):
+    """``M`` ``(rows, n)`` at the fractional column ``position`` in [0, n - 1], linear between
+    its two neighbouring columns (picked by a symbolic index: O(rows), not O(n))."""
+    rows = M.shape[0]
+    j = ca.fmin(ca.floor(ca.fmax(position, 0.0)), n - 2)
+    w = position - j
+    flat, idx = ca.vec(M), j * rows + ca.DM(np.arange(rows))
+    return (1 - w) * flat[idx] + w * flat[idx + rows]
 
 
 class _Control:
@@ -356,12 +361,10 @@ class _Control:
         x, xv, xa = seg
         xc, xc_rate, _ = kin.com_x(q, v, ca.MX.zeros(nv))
         f = _interp_index(xc, x)
-        local = _hat(f, ns)
-        x_rate = ca.dot(local, xv)
+        x_rate = _lerp(xv.T, f, ns)
         rate = ca.if_else(x_rate > 1e-9, xc_rate / x_rate, 1.0)
-        xa_f = ca.dot(local, xa)
-        full = _hat(i0 + f, n)
-        lerp = lambda M: ca.mtimes(M, full)  # noqa: E731
+        xa_f = _lerp(xa.T, f, ns)
+        lerp = lambda M: _lerp(M, i0 + f, n)  # noqa: E731
         p, pv, pa = lerp(P), rate * lerp(Pv), rate**2 * lerp(Pa) + phase_acc * lerp(Pv)
         rp, rpv = lerp(R), rate * lerp(Rv)
         rpa = rate**2 * lerp(Ra) + phase_acc * lerp(Rv)
