@@ -19,7 +19,7 @@ test: $(BIN)/.installed
 	$(BIN)/python -m pytest -q
 
 bench: $(BIN)/.installed
-	$(BIN)/python benchmarks/learning_loop.py
+	$(BIN)/python benchmarks/backends.py
 
 docs: $(BIN)/.installed
 	$(BIN)/python -m feltool.docgen docs/configuration.md

@@ -378,10 +378,17 @@ def cycle_function(exp, plant, full: bool = False, name: str = "cycle") -> ca.Fu
 
     # 5. metrics
     stats = cycle_stats(law, weight, X, Qd, U, Urows, Uerr, err, hits, finite, mask)
-    outs = [ca.vertcat(theta_next, theta_m_next, x_end), stats]
-    names = ["state_next", "stats"]
+    return cycle_outputs(name, state, data, params, ca.vertcat(theta_next, theta_m_next, x_end),
+                         stats, (X, U, Urows, Uerr, Qd), full)
+
+
+def cycle_outputs(name: str, state, data, params, state_next, stats, traces,
+                  full: bool) -> ca.Function:
+    """A cycle as ``(state, data, params) -> (state_next, stats)``, with ``full`` also its
+    ``traces`` ``(X, U, Urows, Uerr, Qd)`` (one column per step)."""
+    outs, names = [state_next, stats], ["state_next", "stats"]
     if full:
-        outs += [X, U, Urows, Uerr, Qd]
+        outs += list(traces)
         names += ["X", "U", "Urows", "Uerr", "Qd"]
     return ca.Function(name, [state, data, params], [ca.densify(o) for o in outs],
                        ["state", "data", "params"], names)
@@ -501,13 +508,9 @@ def per_step_cycle_function(exp, plant, full: bool = False,
     finite = (ca.sum1(ca.sum2(ca.fabs(X))) + ca.sum1(ca.fabs(x_end))) < np.inf
     stats = cycle_stats(law, D[end - 1, :], X, Qd, U, Urows, Uerr, err, hits, finite,
                         D[pl["per_step"] - 1, :] if pl["masked"] else None)
-    outs = [ca.vertcat(TH[:, n - 1], Y[:, n - 1], SS[:, n - 1], x_end), stats]
-    names = ["state_next", "stats"]
-    if full:
-        outs += [X, U, Urows, Uerr, Qd]
-        names += ["X", "U", "Urows", "Uerr", "Qd"]
-    return ca.Function(name, [state, data, params], [ca.densify(o) for o in outs],
-                       ["state", "data", "params"], names)
+    return cycle_outputs(name, state, data, params,
+                         ca.vertcat(TH[:, n - 1], Y[:, n - 1], SS[:, n - 1], x_end), stats,
+                         (X, U, Urows, Uerr, Qd), full)
 
 
 def many_function(exp, plant, cycles: int, name: str = "many",

@@ -30,6 +30,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.compiled_graph import (
+    cycle_outputs,
     cycle_stats,
     desired_from_data,
     layout,
@@ -279,13 +280,8 @@ def walker_cycle_function(exp, plant, full: bool = False,
     stats = cycle_stats(law, live, X, Qd, U, Urows, Uerr, err, ca.MX.zeros(2 * nv, n),
                         finite, live)
     stats = ca.vertcat(stats, fell, n_run, imp.T, guard.T, foot.T)
-    outs = [ca.vertcat(theta_next, x_end), stats]
-    names = ["state_next", "stats"]
-    if full:
-        outs += [X, U, Urows, Uerr, Qd]
-        names += ["X", "U", "Urows", "Uerr", "Qd"]
-    return ca.Function(name, [state, data, params], [ca.densify(o) for o in outs],
-                       ["state", "data", "params"], names)
+    return cycle_outputs(name, state, data, params, ca.vertcat(theta_next, x_end), stats,
+                         (X, U, Urows, Uerr, Qd), full)
 
 
 __all__ = ["unsupported_walker", "walker_cycle_function", "walker_step_function"]
