@@ -80,9 +80,10 @@ def _solve_small(S: np.ndarray, r: np.ndarray) -> np.ndarray:
     if len(r) == 1:
         return r / S[0, 0]
     if len(r) == 2:
-        a, b, d = S[0, 0], S[0, 1], S[1, 1]
+        (a, b), (_, d) = S.tolist()
+        r0, r1 = r.tolist()
         det = a * d - b * b
-        return np.array([(d * r[0] - b * r[1]) / det, (a * r[1] - b * r[0]) / det])
+        return np.array([(d * r0 - b * r1) / det, (a * r1 - b * r0) / det])
     return np.linalg.solve(S, r)
 
 
@@ -258,6 +259,17 @@ class HybridLoop:
         n, nv = P.shape
         W, law, alloc = self.walker, self.law, self.allocation
         Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n, nv)) for _ in range(8))
+        # a linear law's terms (feltool.cycle.feedback) are one vector per step: its own
+        # outputs are the joint torques, the learning signal their error rows
+        linear = law.linear
+
+        def log(k_end: int, fall: str | None) -> HybridLog:
+            u_rows, u_err = Urows[:k_end], Uerr[:k_end]
+            if linear:
+                u_rows, u_err = U[:k_end], np.where(self.error_rows > 0, U[:k_end], 0.0)
+            return HybridLog(Q[:k_end], V[:k_end], U[:k_end], q, v, Qd[:k_end], Vd[:k_end],
+                             Ad[:k_end], labels[:k_end], impacts, fall, u_rows, u_err)
+
         labels = np.zeros(n, dtype=int)
         impacts, stance, fall = [], 0, None
         h = self.dt / self.substeps
@@ -265,11 +277,11 @@ class HybridLoop:
         Ts = n * self.dt / W.steps_per_cycle if W else None
         k_step = 0  # first control step of the current step
         step = stepper(NUMPY, plant.forward, h, self.substeps, semi)
-        if W:  # the desired joint trajectories at both stance labels, q_d = G_s p_d
-            GP = [(P @ G.T, Pv @ G.T, Pa @ G.T) for G in W.G]
+        if W:  # the desired joint state at both stance labels, q_d = G_s p_d, row by row
+            GP = [list(zip(P @ G.T, Pv @ G.T, Pa @ G.T)) for G in W.G]
         for k in range(n):
             if W:
-                qd, vd, ad = (X[k] for X in GP[stance])
+                qd, vd, ad = GP[stance][k]
                 if W.placement is not None:
                     dq, dv = W.placement_offset(q, v, qd, vd, (k - k_step) * self.dt, Ts)
                     qd, vd = qd + dq, vd + dv
@@ -277,16 +289,16 @@ class HybridLoop:
                 qd, vd, ad = P[k], Pv[k], Pa[k]
             Q[k], V[k], Qd[k], Vd[k], Ad[k], labels[k] = q, v, qd, vd, ad, stance
             r, rd = law.reference(qd, vd)
-            U[k], Urows[k], Uerr[k] = law.terms(q, v, r, rd, self.error_rows)
+            if linear:  # u_fb = u_rows, and u_err from them after the loop
+                U[k] = law.kp * (r - law.C @ q) + law.kd * (rd - law.C @ v)
+            else:
+                U[k], Urows[k], Uerr[k] = law.terms(q, v, r, rd, self.error_rows)
             tau = self.known.inverse(qd, vd, ad) + U[k]
             tau = alloc.joint_torque(q, tau) if alloc else self.actuated * tau
             q, v = step(q, v, tau)
             fall = W.fallen(q, v) if W else fall_reason(q, v, None, np.inf)
             if fall:
-                k_end = k + 1
-                return HybridLog(Q[:k_end], V[:k_end], U[:k_end], q, v, Qd[:k_end], Vd[:k_end],
-                                 Ad[:k_end], labels[:k_end], impacts, fall, Urows[:k_end],
-                                 Uerr[:k_end])
+                return log(k + 1, fall)
             if W and len(impacts) < W.steps_per_cycle:
                 t = (k + 1) * self.dt
                 j = len(impacts)
@@ -297,7 +309,7 @@ class HybridLoop:
                     q, v = W.apply_impact(q, v)
                     stance = 1 - stance
                     k_step = k + 1
-        return HybridLog(Q, V, U, q, v, Qd, Vd, Ad, labels, impacts, None, Urows, Uerr)
+        return log(n, None)
 
     def jacobian_derivatives(self, log: HybridLog) -> tuple:
         """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with
