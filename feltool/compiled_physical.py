@@ -23,7 +23,9 @@ cycle's trajectories in place (``mapaccum`` would copy them to every step). What
 cycle (a contact check, a fall, no touchdown) is reported by a code; the Python engine then
 reruns that cycle for its message and numbers (it is the seed's last). The update (eq. 3.6,
 Gauss-Newton in motor torques with the inverse-dynamics error estimate) uses the sensitivity row
-of the sample nearest each step's phase, as the Python engine does.
+of the sample nearest each step's phase, as the Python engine does; its sums are accumulated in
+the step's state, step by step (a row picked by index per step, not a steps x samples
+assignment matrix after the cycle).
 """
 
 from __future__ import annotations
@@ -415,7 +417,12 @@ class PhysicalGraph:
         stp = self.stp
         self.nv, self.k, self.n = stp.nv, stp.k, stp.n
         self.n_max = BLOCK * int(np.ceil(3 * self.n / BLOCK))
+        self.lay = layout(exp)
         self.sizes = stp.sizes()
+        # the FEL sums of eq. 3.6, accumulated step by step (grad; Gauss-Newton: its matrix)
+        PL = self.lay.n_learned
+        self.gauss_newton = exp.learner.update == "gauss_newton"
+        self.sizes.update(grad=PL, hess=PL * PL if self.gauss_newton else 0)
         self.n_state = sum(self.sizes.values())
         nv, k = self.nv, self.k
         self.row_fields = [("valid", 1), ("q", nv), ("v", nv), ("qd", nv), ("vd", nv),
@@ -438,6 +445,7 @@ class PhysicalGraph:
         S = ca.MX.sym("S", self.n_state)
         consts = ca.MX.sym("consts", self.ctl.consts_size())
         kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
+        srows = ca.MX.sym("srows", self.srows_size())
         st = self._unpack(S, list(self.sizes.items()))
         running = ca.logic_and(st["stop"] == 0, st["done"] == 0)
         (tau, u, over, qd, vd, ad, r, U, Urows, Uerr, A, inert, phase_acc_next, jj, label,
@@ -483,15 +491,52 @@ class PhysicalGraph:
                                            st["max_imp_ratio"]),
                "energy": st["energy"] + impact * lost, "length": st["length"] + impact * length,
                "hits": hits, "work_unused": st["work_unused"]}
+        new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, Uerr + inert
+                                                  if self.inverse_dynamics else Uerr, jj, srows)
         S_new = ca.vertcat(*[new[name] for name in self.sizes])
         row = ca.vertcat(1, st["q"], st["v"], qd, vd, ad, r, U, Urows, Uerr, A, inert, jj,
                          label, err, work, impact, impact * length)
-        body = ca.Function("phys_body", [S, consts, kp, kd, targets], [S_new, row])
-        idle = ca.Function("phys_idle", [S, consts, kp, kd, targets],
-                           [S, ca.DM.zeros(self.row_size)])
+        args = [S, consts, kp, kd, targets, srows]
+        body = ca.Function("phys_body", args, [S_new, row])
+        idle = ca.Function("phys_idle", args, [S, ca.DM.zeros(self.row_size)])
         switch = ca.Function.conditional("phys_switch", [idle], body)  # 0: idle, else: run
-        S_out, row_out = switch(running, S, consts, kp, kd, targets)
-        return ca.Function("phys_step", [S, consts, kp, kd, targets], [S_out, row_out])
+        S_out, row_out = switch(running, *args)
+        return ca.Function("phys_step", args, [S_out, row_out])
+
+    @property
+    def inverse_dynamics(self) -> bool:
+        return self.exp.config.learning.error_estimate == "inverse_dynamics"
+
+    def srows_size(self) -> int:
+        """The learned joints' sensitivity rows, row-major per joint and derivative order."""
+        return 3 * self.n * self.lay.n_learned
+
+    def _fel_sums(self, st, qd, vd, ad, label, A, E, jj, srows):
+        """The step's terms of eq. 3.6's sums added to the state's: with the sensitivity row
+        of the step's sample ``jj`` (:math:`T_l`, 3 x P_l) and the step's derivative columns
+        ``s = d^T e``, ``g = d_a^T d_b`` (:func:`_fel_step`): grad_l += T_l^T s_l,
+        hess_(l1, l2) += T_l1^T G_(l1, l2) T_l2."""
+        blocks, n = self.lay.blocks, self.n
+        L = len(blocks)
+        if not L:
+            return st["grad"], st["hess"]
+        s_vals, g_vals = _fel_step(self.kin, self.lay, self.exp, self.k)(qd, vd, ad, label, A, E)
+        j = ca.fmin(ca.fmax(jj, 0), n - 1)
+        T, grads, off = [], [], 0
+        for l, (_, P) in enumerate(blocks):
+            rows = [srows[off + c * n * P + j * P + ca.DM(np.arange(P))] for c in range(3)]
+            T.append(ca.horzcat(*rows))  # P x 3
+            grads.append(ca.mtimes(T[l], ca.vertcat(*[s_vals[c * L + l] for c in range(3)])))
+            off += 3 * n * P
+        grad = st["grad"] + ca.vertcat(*grads)
+        if not self.gauss_newton:
+            return grad, st["hess"]
+        D3 = 3 * L
+        blocks_h = [[ca.mtimes(T[l1], ca.mtimes(
+            ca.reshape(ca.vertcat(*[g_vals[(a * L + l1) * D3 + (b * L + l2)]
+                                    for b in range(3) for a in range(3)]), 3, 3), T[l2].T))
+            for l2 in range(L)] for l1 in range(L)]
+        return grad, st["hess"] + ca.vec(ca.blockcat(blocks_h))
 
     def _touchdown_switch(self, td: ca.Function) -> ca.Function:
         """``(land, q, v, tau, h, anchor, checks, q1, v1, checks1) -> branch``: the
@@ -517,16 +562,18 @@ class PhysicalGraph:
         S = ca.MX.sym("S", self.n_state)
         consts = ca.MX.sym("consts", self.ctl.consts_size())
         kp, kd, targets = (ca.MX.sym(s, self.nv) for s in ("kp", "kd", "targets"))
+        srows = ca.MX.sym("srows", self.srows_size())
+        args = [consts, kp, kd, targets, srows]
         s, rows = S, []
         for _ in range(BLOCK):
-            s, row = one(s, consts, kp, kd, targets)
+            s, row = one(s, *args)
             rows.append(row)
-        block = ca.Function("phys_block", [S, consts, kp, kd, targets], [s, ca.horzcat(*rows)])
+        block = ca.Function("phys_block", [S, *args], [s, ca.horzcat(*rows)])
         s, rows = S, []
         for _ in range(self.n_max // BLOCK):
-            s, r = block(s, consts, kp, kd, targets)
+            s, r = block(s, *args)
             rows.append(r)
-        return ca.Function("phys_steps", [S, consts, kp, kd, targets], [s, ca.horzcat(*rows)])
+        return ca.Function("phys_steps", [S, *args], [s, ca.horzcat(*rows)])
 
 
 #: The contact metrics of a cycle in the graph's stats, in order (:func:`feltool.seed.
@@ -575,8 +622,11 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     consts = ca.vertcat(*[ca.vec(M) for M in (P, Pv, Pa, *R)],
                         *[ca.horzcat(G[c, :], pad).T for c in range(3)])
     S0 = ca.vertcat(x0, 0, 0, ca.if_else(phase_bad, _stop("phase"), 0), 0, np.inf, 0, np.inf,
-                    -np.inf, 0, 0, ca.DM.zeros(k), 0)
-    S, rows = g.steps_function()(S0, consts, kp, kd, targets)
+                    -np.inf, 0, 0, ca.DM.zeros(k), 0, ca.DM.zeros(g.sizes["grad"]),
+                    ca.DM.zeros(g.sizes["hess"]))
+    srows = ca.vertcat(*[ca.vec(sens[l][c].T) for l in range(L) for c in range(3)]) if L \
+        else ca.MX.zeros(0)
+    S, rows = g.steps_function()(S0, consts, kp, kd, targets, srows)
     st = g._unpack(S, list(g.sizes.items()))
     rw = {name: rows[off:off + size, :] for (name, size), off in
           zip(g.row_fields, np.cumsum([0] + [sz for _, sz in g.row_fields]))}
@@ -585,39 +635,12 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     valid = rw["valid"]
     m = ca.sum2(valid)
     n_max = g.n_max
-    # the update (eq. 3.6) with the rows of the samples nearest the steps' phases
+    # the update (eq. 3.6): the sums accumulated over the steps with the sensitivity rows of
+    # the samples nearest the steps' phases
     theta_next = theta
     if L:
-        E = rw["Uerr"]
-        if exp.config.learning.error_estimate == "inverse_dynamics":
-            E = E + rw["inert"]
-        E = E * ca.repmat(valid, nv, 1)
-        per = _fel_step(kin, lay, exp, k)
-        Sv, Gv = per.map(n_max, "serial")(rw["qd"], rw["vd"], rw["ad"], rw["label"], rw["A"], E)
-        onehot = (ca.fabs(ca.repmat(rw["jj"], n, 1) - ca.repmat(ca.DM(np.arange(n)), 1, n_max))
-                  < 0.5) * ca.repmat(valid, n, 1)
-        bins_s = ca.mtimes(onehot, Sv.T)  # (n, 3L)
-        bins_g = ca.mtimes(onehot, Gv.T)  # (n, 9L^2)
-        grads, blocks = [], []
-        for l in range(L):
-            grads.append(sum(ca.mtimes(bins_s[:, c * L + l].T, sens[l][c]).T for c in range(3)))
-        g_ = ca.vertcat(*grads)
-        hess = None
-        if learner.update == "gauss_newton":
-            D3 = 3 * L
-            for l1 in range(L):
-                line = []
-                for l2 in range(L):
-                    acc = 0
-                    for a in range(3):
-                        for b in range(3):
-                            col = (a * L + l1) * D3 + (b * L + l2)
-                            acc = acc + ca.mtimes(sens[l1][a].T, sens[l2][b] *
-                                                  ca.repmat(bins_g[:, col], 1,
-                                                            sens[l2][b].shape[1]))
-                    line.append(acc)
-                blocks.append(line)
-            hess = ca.blockcat(blocks)
+        g_ = st["grad"]
+        hess = ca.reshape(st["hess"], PL, PL) if g.gauss_newton else None
         step = fel_update(CASADI, theta, g_, hess, rates, learner.is_goal, learner.update,
                           damping)
         theta_next = ca.if_else(stop == 0, step, theta)

@@ -59,6 +59,27 @@ def test_every_shipped_config_runs_compiled_with_the_python_engines_metrics(path
         assert comp.summary["walking"]["steps"] == walk["steps"]
 
 
+PERTURBED = "{init: perturbed, perturbation_rad: 0.02, goal_spread: 0}"
+
+
+@pytest.mark.parametrize("over", [
+    ["learning.update=gradient", "learning.rates.weights=0.002"],
+    [f"joints.left_hip.learn={PERTURBED}", f"joints.right_hip.learn={PERTURBED}"],
+], ids=["gradient", "three_learned_joints"])
+def test_physical_walker_updates_equal_the_python_engines(over):
+    """The compiled walker's FEL sums (accumulated step by step with the sensitivity row of
+    each step's sample) give the Python engine's updates: plain gradient, and Gauss-Newton
+    with three learned joints (the cross blocks of its matrix), three cycles to 1e-8."""
+    path = CONFIGS / "gaits" / "three_link_walker.yaml"
+    over = ["walking.poincare=false", *over]
+    ref = run_seed(load_experiment(path, ["backend=pinocchio", *over]), 0, 3)
+    comp = run_seed(load_experiment(path, ["backend=compiled", *over]), 0, 3)
+    assert ref.summary["diverged"] is False and len(ref.rows) == 3
+    fb = [r["fb_abs_mean_error"] for r in ref.rows]
+    assert fb[2] < 0.5 * fb[0]  # it learns: the updates are not zero
+    _rows_equal(ref, comp)
+
+
 def test_a_physical_walker_that_stops_gives_the_python_engines_reason():
     """A contact check that fails ends the cycle on the compiled engine too, with the Python
     engine's message and kind (the stopped cycle is rerun there)."""
