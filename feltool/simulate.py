@@ -137,7 +137,7 @@ class ClosedLoop:
                        self.integrator == "semi_implicit_euler", lim)
         for x, f in zip(X, F):
             x[:nv], x[nv:] = q, v
-            q, v = step(q, v, f - SK @ x)
+            q, v = step(q, v, f - SK.dot(x))  # (.dot: less call overhead than @)
         U = B - X @ K.T
         log = CycleLog(X[:, :nv], X[:, nv:], U, q, v, U, U * self.error_rows)
         if lim is not None:

@@ -62,7 +62,8 @@ class PinocchioDynamics:
             d[...] = derivatives(model, data, q, v, a)
             t[...] = data.tau
         M = D[:, 2]
-        M = np.triu(M) + np.swapaxes(np.triu(M, 1), 1, 2)  # Pinocchio fills the upper triangle
+        lower, upper = self._lower, self._lower[::-1]
+        M[:, lower[0], lower[1]] = M[:, upper[0], upper[1]]  # Pinocchio fills the upper triangle
         return tau, D[:, 0], D[:, 1], M
 
     def integrate(self, q, dq):
