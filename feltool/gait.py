@@ -6,7 +6,9 @@ learning cycle = ``steps_per_cycle`` steps), so the map :math:`x_{h+1} = P(x_h)`
 next is its Poincaré map. A fixed point :math:`x^* = P(x^*)` is a periodic gait; it is a stable
 limit cycle when every eigenvalue of :math:`\partial P/\partial x` at :math:`x^*` lies inside the
 unit circle. The fixed point is found by iterating :math:`P` and then Newton's method on
-:math:`P(x) - x` with a central finite-difference Jacobian.
+:math:`P(x) - x` with a central finite-difference Jacobian. The map runs on the experiment's
+compiled engine when it has one (the Python engine's loop gives the same end states to
+rounding), the last cycle on the Python engine for its touchdowns.
 """
 
 from __future__ import annotations
@@ -31,17 +33,16 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
     P, Pv, Pa = exp.primitives.desired(theta)
     nv = len(q)
 
-    def step(x):
+    def python_step(x):
         log = hyb.run_cycle(plant, x[:nv], x[nv:], P, Pv, Pa)
-        if log.fall:
-            return None, log
-        return np.concatenate([log.q_end, log.v_end]), log
+        return (None if log.fall else np.concatenate([log.q_end, log.v_end])), log.fall
 
+    step = _compiled_step(exp, theta, plant) or python_step
     x = np.concatenate([q, v])
     for _ in range(iterations):
-        nxt, log = step(x)
+        nxt, fall = step(x)
         if nxt is None:
-            return {"fixed_point_found": False, "reason": log.fall}
+            return {"fixed_point_found": False, "reason": fall}
         x = nxt
     residual = np.inf
     for _ in range(newton):
@@ -52,9 +53,10 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
             break
         D = _jacobian(step, x, eps)
         x = x - np.linalg.solve(D - np.eye(len(x)), r)
-    fx, log = step(x)
+    fx, _ = step(x)
     residual = float(np.abs(fx - x).max())
     D = _jacobian(step, x, eps)
+    log = hyb.run_cycle(plant, x[:nv], x[nv:], P, Pv, Pa)  # its touchdowns and steps
     eig = np.linalg.eigvals(D)
     order = np.argsort(-np.abs(eig))
     eig = eig[order]
@@ -74,6 +76,23 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
         "impacts_by_guard": sum(bool(g) for _, g, _ in log.impacts),
         "stride_length_m": stride, "speed_m_per_s": stride / T,
     }
+
+
+def _compiled_step(exp, theta: np.ndarray, plant):
+    """The map ``x -> (x_next or None, why it stopped)`` on the compiled engine when it runs
+    this experiment's cycles (the cycle's end state does not depend on the update that follows
+    it, so θ stays held), else None."""
+    if getattr(exp, "engine", None) != "compiled" or exp.compiled_cycle() is None:
+        return None
+    from feltool.compiled_engine import compiled_runner
+
+    run, nv = compiled_runner(exp), exp.robot.model.nv
+
+    def step(x):
+        out = run(theta, x[:nv], x[nv:], plant)
+        return (None if out.fall else np.concatenate([out.q_end, out.v_end])), out.fall
+
+    return step
 
 
 def _jacobian(step, x: np.ndarray, eps: float) -> np.ndarray:
