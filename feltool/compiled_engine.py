@@ -380,7 +380,9 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         theta_next = theta.copy()
         theta_next[exp.learner.learned] = state[:PL]
         x_end = state[PL:]
-        max_error, max_speed, fb_stab, fb_err, finite = stats[2 * nv:2 * nv + 5].tolist()
+        s = 2 * nv  # the scalars of SCALARS, then the limit hits (joints, motors' torques)
+        max_error, max_speed, fb_stab, fb_err, finite = stats[s:s + len(SCALARS)].tolist()
+        hits = stats[s + len(SCALARS):k].round().astype(int)
         at, lengths = stats[k + 2:k + 2 + spc], stats[k + 2 + spc:k + 2 + 2 * spc]
         contact = dict(zip(CONTACT, stats[k + 2 + 2 * spc:].tolist()))
         contact["steps"] = int(round(contact["steps"]))
@@ -395,8 +397,7 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         out = CycleOutcome(theta_next, x_end[:nv], x_end[nv:], stats[:nv], stats[nv:2 * nv],
                            max_error, max_speed, finite == 1.0 and np.isfinite(state).all(),
                            trace, fb_stab, fb_err,
-                           limit_hits=(np.zeros(nv, int),
-                                       stats[3 * nv:4 * nv].round().astype(int)))
+                           limit_hits=(hits[:nv], hits[nv:]))
         out.impacts = [(int(round(s)), True, float(length)) for s, length in zip(at, lengths)]
         out.contact = contact
         return out

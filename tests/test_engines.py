@@ -53,6 +53,7 @@ def test_every_shipped_config_runs_compiled_with_the_python_engines_metrics(path
     comp = run_seed(load_experiment(path, ["backend=compiled", *over]), 0, 3)
     assert ref.summary["diverged"] is False
     _rows_equal(ref, comp)
+    assert comp.summary["limits"] == ref.summary["limits"]
     walk = ref.summary.get("walking")
     if walk is not None:
         assert comp.summary["walking"]["walked"] == walk["walked"]
