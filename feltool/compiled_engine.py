@@ -179,7 +179,7 @@ class CompiledEngine:
 
     def many(self, world: int, state: np.ndarray, data: np.ndarray):
         """``(states, stats)`` of the next :data:`CYCLES_PER_CALL` cycles, one column each."""
-        states, stats = self._calls[3 * world + 2](state, data, self.params)
+        states, stats = self._calls[self._n_fns * world + 2](state, data, self.params)
         return (states.reshape(-1, CYCLES_PER_CALL, order="F"),
                 stats.reshape(-1, CYCLES_PER_CALL, order="F"))
 

@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from feltool.compiled_graph import desired_from_data, layout
-from feltool.cycle import feedback, fel_update
+from feltool.cycle import feedback, fel_update, wrap
 from feltool.dynamics.casadi_backend import (
     symbolic_center_of_mass,
     symbolic_frame_kinematics,
@@ -399,7 +399,7 @@ class _Control:
         # the metric's largest error: forward (not reference) desired against the system
         r_fwd = track * ca.mtimes(C, qd) + stab * targets
         controlled = np.flatnonzero(law.tracking | law.stabilizing).tolist()
-        err = ca.mmax(ca.fabs(_wrap(r_fwd - ca.mtimes(C, q))[controlled])) if controlled \
+        err = ca.mmax(ca.fabs(wrap(CASADI, r_fwd - ca.mtimes(C, q))[controlled])) if controlled \
             else ca.MX(0)
         return ca.Function("control", [q, v, phase_acc, n_imp, consts, kp, kd, targets],
                            [tau, u, over, qd, vd, ad, r, u_fb, u_rows, u_err, ca.vec(A), inert,
@@ -668,7 +668,7 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
         err_rows = [(C[i, :] @ rw["q"]) - rw["r"][i, :] for i in refs]
     else:
         err_rows = [(C[i, :] @ rw["q"]) - targets[i] for i in stab]
-    sq = sum(ca.sum2(_wrap(e_) ** 2 * valid) for e_ in err_rows) if err_rows else ca.MX(0)
+    sq = sum(ca.sum2(wrap(CASADI, e_) ** 2 * valid) for e_ in err_rows) if err_rows else ca.MX(0)
     stab_rms = ca.sqrt(sq / (m * max(1, len(err_rows)))) if err_rows else ca.MX(0)
     n_steps = st["n_imp"]
     nan = ca.MX(np.nan)
@@ -707,12 +707,6 @@ def _fel_step(kin: _Kin, lay, exp, k: int) -> ca.Function:
     svals = ca.vertcat(*[ca.dot(di, em) for di in d])
     gvals = ca.vertcat(*[ca.dot(da, db) for da in d for db in d])
     return ca.Function("fel_step", [qs, vs, as_, ls, Am, e], [svals, gvals])
-
-
-def _wrap(a):
-    from feltool.cycle import wrap
-
-    return wrap(CASADI, a)
 
 
 def _with(x, values: dict):

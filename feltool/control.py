@@ -23,6 +23,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.cycle import feedback
+from feltool.cycle import wrap as wrap_angle
 from feltool.ops import NUMPY
 
 
@@ -75,8 +76,8 @@ class FrameAngle:
 
 
 def wrap(angle):
-    """Angle(s) wrapped into (-pi, pi]."""
-    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+    """Angle(s) wrapped into [-pi, pi) in [rad] (:func:`feltool.cycle.wrap` on numbers)."""
+    return wrap_angle(NUMPY, np.asarray(angle))
 
 
 @dataclass

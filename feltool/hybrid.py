@@ -290,7 +290,7 @@ class HybridLoop:
             Q[k], V[k], Qd[k], Vd[k], Ad[k], labels[k] = q, v, qd, vd, ad, stance
             r, rd = law.reference(qd, vd)
             if linear:  # u_fb = u_rows, and u_err from them after the loop
-                U[k] = law.kp * (r - law.C @ q) + law.kd * (rd - law.C @ v)
+                U[k] = law.feedback(q, v, r, rd)
             else:
                 U[k], Urows[k], Uerr[k] = law.terms(q, v, r, rd, self.error_rows)
             tau = self.known.inverse(qd, vd, ad) + U[k]

@@ -22,9 +22,7 @@ class NumpyOps:
     def where(cond, a, b):
         return np.where(cond, a, b)
 
-    fabs, sqrt, tanh, floor = np.abs, np.sqrt, np.tanh, np.floor
-    sin, cos, atan2 = np.sin, np.cos, np.arctan2
-    fmin, fmax = np.minimum, np.maximum
+    floor, fmax = np.floor, np.maximum
 
     @staticmethod
     def clip(x, low, high):
@@ -77,9 +75,7 @@ class CasadiOps:
     def where(cond, a, b):
         return ca.if_else(cond, a, b)
 
-    fabs, sqrt, tanh = staticmethod(ca.fabs), staticmethod(ca.sqrt), staticmethod(ca.tanh)
-    floor, sin, cos = staticmethod(ca.floor), staticmethod(ca.sin), staticmethod(ca.cos)
-    atan2, fmin, fmax = staticmethod(ca.atan2), staticmethod(ca.fmin), staticmethod(ca.fmax)
+    floor, fmax = staticmethod(ca.floor), staticmethod(ca.fmax)
 
     @staticmethod
     def clip(x, low, high):
