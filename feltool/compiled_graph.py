@@ -92,7 +92,7 @@ def layout(exp) -> Layout:
     if model is not None and not hasattr(model.features, "corrected_model"):
         basis = model.n_params // exp.robot.model.nv  # phase-basis features
     return Layout(exp.robot.model.nv, max_steps(exp),
-                  tuple((i, len(cols)) for i, cols, _, _ in exp.learner._blocks),
+                  tuple((i, len(cols)) for i, cols in exp.learner._blocks),
                   model.n_params if model is not None else 0, basis, exp.phase_varies)
 
 

@@ -70,16 +70,17 @@ class FeedbackErrorLearner:
 
     def __post_init__(self):
         self._casadi = None
-        # Learned blocks: (velocity index, columns into the learned vector, primitive, row slice).
+        # Learned blocks: (velocity index, columns into the learned vector); a learned joint
+        # learns every parameter of its RMP, so a block's sensitivities are used whole.
         self._blocks = []
         pos = {int(p): c for c, p in enumerate(self.learned)}
-        for i, prim in self.primitives.primitives.items():
+        for i in self.primitives.primitives:
             sl = self.primitives.slices[i]
             cols = [pos[p] for p in range(sl.start, sl.stop) if p in pos]
             if cols:
                 if len(cols) != sl.stop - sl.start:
                     raise ValueError("a learned joint learns every parameter of its RMP")
-                self._blocks.append((i, np.array(cols), prim, np.arange(sl.start, sl.stop)))
+                self._blocks.append((i, np.array(cols)))
 
     @property
     def n_learned(self) -> int:
@@ -111,9 +112,8 @@ class FeedbackErrorLearner:
             derivatives = dynamics.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
         Dq, Dv, M = derivatives
         sens = self.primitives.sensitivities(cycle)
-        for i, cols, _, rows in self._blocks:
-            sel = np.isin(rows, self.learned)
-            Xq, Xv, Xa = (X[:, sel] for X in sens[i])
+        for i, cols in self._blocks:
+            Xq, Xv, Xa = sens[i]
             if samples is not None:
                 Xq, Xv, Xa = Xq[samples], Xv[samples], Xa[samples]
             J[:, :, cols] = (Dq[:, :, i, None] * Xq[:, None, :] + Dv[:, :, i, None] * Xv[:, None, :]
@@ -182,7 +182,7 @@ class FeedbackErrorLearner:
         the steps of ``cycle`` (``samples``: the RMP sample of each row)."""
         sens = self.primitives.sensitivities(cycle)
         out = []
-        for i, _, _, _ in self._blocks:
+        for i, _ in self._blocks:
             X = sens[i]
             out.append(tuple(x[samples] for x in X) if samples is not None else X)
         return out
@@ -195,7 +195,7 @@ class FeedbackErrorLearner:
         torques ``E`` ``(n, nv)``, without forming J (:func:`feltool.cycle.fel_sums`);
         ``weight``, ``cycle``, ``samples`` as in :meth:`step` and :meth:`jacobian`."""
         Dq, Dv, M = derivatives
-        deriv = [(Dq[:, :, i].T, Dv[:, :, i].T, M[:, :, i].T) for i, _, _, _ in self._blocks]
+        deriv = [(Dq[:, :, i].T, Dv[:, :, i].T, M[:, :, i].T) for i, _ in self._blocks]
         Ew = E if weight is None else E * weight[:, None]
         rows = None
         if self.update == "gauss_newton":

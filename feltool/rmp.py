@@ -123,9 +123,6 @@ class RhythmicPrimitive:
         az, bz = self.alpha_z, self.beta_z
         #: the transformation system in the phase: y' = A y + E(phi) theta, y = (q, q')
         self.A_phase = np.array([[0.0, 1.0], [-az * bz, -az]])
-        #: ... and in time at the nominal clock, x = (q, qdot): xdot = A x + ...
-        self.A = np.array([[0.0, 1.0], [-az * bz / self.tau**2, -az / self.tau]])
-        self.Phi = exp2(self.A, self.dt)
         self.n_harmonics = spectral.von_mises_harmonics(self.width)
         M = self.n_harmonics
         # The forcing's series (weights: r psi_i; goal: alpha_z beta_z g), then the limit
@@ -177,8 +174,6 @@ class RhythmicPrimitive:
     def sensitivity(self, cycle: PhaseSamples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:math:`\\partial(q_d, \\dot q_d, \\ddot q_d)/\\partial\\theta` at the steps of a
         cycle, each ``(n, N + 1)``; constant in θ because the RMP is linear in θ."""
-        if cycle is self.nominal:
-            return self.periodic_sensitivity()
         return time_derivatives(*self.limit_cycle(cycle.phi), cycle)
 
     def periodic_sensitivity(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -226,15 +221,13 @@ class RhythmicPrimitive:
                                             - F @ self.state_rows(phi))
         return out
 
-    def phase_acceleration(self, y: np.ndarray, theta: np.ndarray, phi: float) -> float:
+    def phase_acceleration(self, y: np.ndarray, S: np.ndarray, theta: np.ndarray,
+                           phi: float) -> tuple[float, np.ndarray]:
         """:math:`q''` at the state ``y = (q, q')`` and phase ``phi`` (the transformation
-        system in the phase)."""
-        return float(self.A_phase[1] @ y + self.input_row(phi) @ theta)
-
-    def phase_acceleration_sensitivity(self, S: np.ndarray, phi: float) -> np.ndarray:
-        """:math:`\\partial q''/\\partial\\theta` from the state's sensitivity ``S``
-        ``(2, P)``."""
-        return self.A_phase[1] @ S + self.input_row(phi)
+        system in the phase), and :math:`\\partial q''/\\partial\\theta` from the state's
+        sensitivity ``S`` ``(2, P)``."""
+        row = self.input_row(phi)
+        return float(self.A_phase[1] @ y + row @ theta), self.A_phase[1] @ S + row
 
     # time units at the nominal clock, step k (demos, tests)
     def _nominal_step(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -253,13 +246,6 @@ class RhythmicPrimitive:
         :math:`\\partial x_k/\\partial\\theta` (the linear sensitivity recursion)."""
         F, G = self._nominal_step(k)
         return F @ S + G
-
-    def acceleration(self, x: np.ndarray, theta: np.ndarray, k: int) -> float:
-        """:math:`\\ddot q` at step k from eq. 2.2."""
-        return float(self.A[1] @ x + self.omega**2 * self.input_row(self.phase(k)) @ theta)
-
-    def acceleration_sensitivity(self, S: np.ndarray, k: int) -> np.ndarray:
-        return self.A[1] @ S + self.omega**2 * self.input_row(self.phase(k))
 
     def rollout(self, theta: np.ndarray, x0: np.ndarray, n: int) -> Trajectory:
         """n steps of the nominal clock from the state ``x0 = (q, qdot)`` with fixed θ: the
@@ -378,6 +364,7 @@ class PrimitiveSet:
         self.n_steps = first.n_steps
         #: the nominal clock's first cycle (the thesis's cycle at a whole-sample period)
         self.nominal = first.nominal
+        self._nominal_key = self.nominal.key()  # (a frozen cycle: hashed once)
         self.slices: dict[int, slice] = {}
         start = 0
         for i, prim in self.primitives.items():
@@ -393,7 +380,7 @@ class PrimitiveSet:
         are kept (a clock repeats its cycles)."""
         cycle = cycle or self.nominal
         key = cycle.key()
-        if key == self.nominal.key():
+        if key == self._nominal_key:
             return {i: p.periodic_sensitivity() for i, p in self.primitives.items()}
         if key not in self._cache:
             if len(self._cache) >= 4:

@@ -206,7 +206,7 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
 
         cfg = exp.config
         per_step = cfg.learning.step == "per_step"
-        moving = bool(cfg.motion_events) or bool(varying_phase(cfg)) or per_step
+        moving = per_step or bool(varying_phase(cfg))
         return compiled_runner(exp, Motion(exp, continuous=per_step) if moving else None,
                                theta0)
     if exp.hybrid is not None:
@@ -512,19 +512,19 @@ def _per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, 
             y, S = states[i]
             th = theta[prims.slices[i]]
             qd[i], vd[i] = y[0], w * y[1]
-            ad[i] = w * w * p.phase_acceleration(y, th, phi) + wd * y[1]
+            a, dadth = p.phase_acceleration(y, S, th, phi)
+            ad[i] = w * w * a + wd * y[1]
             Sq[i], Sv[i] = S[0], w * S[1]
-            Sa[i] = w * w * p.phase_acceleration_sensitivity(S, phi) + wd * S[1]
+            Sa[i] = w * w * dadth + wd * S[1]
         Qd[k], Vd[k], Ad[k] = qd, vd, ad
         R, Rd = law.references(qd[None], vd[None])
         u_fb, u_rows, u_err = law.terms(q, v, R[0], Rd[0], exp.loop.error_rows)
         u_ff = dyn.inverse(qd, vd, ad)
         Dq, Dv, M = dyn.inverse_derivatives(qd, vd, ad)
         J = np.zeros((1, nv, learner.n_learned))
-        for i, cols, _, rows in learner._blocks:
-            sel = np.isin(rows, learner.learned)
-            J[0][:, cols] = (np.outer(Dq[:, i], Sq[i][sel]) + np.outer(Dv[:, i], Sv[i][sel])
-                             + np.outer(M[:, i], Sa[i][sel]))
+        for i, cols in learner._blocks:
+            J[0][:, cols] = (np.outer(Dq[:, i], Sq[i]) + np.outer(Dv[:, i], Sv[i])
+                             + np.outer(M[:, i], Sa[i]))
         Q[k], V[k], U[k], Urows[k], Uerr[k] = q, v, u_fb, u_rows, u_err
         q, v = loop.advance(q, v, loop.actuated * (u_ff + u_fb))
         for i, p in prims.primitives.items():

@@ -144,13 +144,16 @@ def test_matrix_exponential_matches_scipy(scale, rng):
 
 @pytest.mark.parametrize("dt", [1e-3, 1e-2, 2e-2])
 def test_step_matrix_is_scipys_exponential_of_eq_2_2(dt):
-    """Phi = exp(A dt) with A written from eq. 2.2 in the test, compared with scipy."""
+    """The step's homogeneous part F = exp(A dphi) with A written from eq. 2.2 in the test
+    (phase units: y = (q, q'), dphi = 2 pi dt / T), compared with scipy."""
     from scipy.linalg import expm as scipy_expm
 
     prim = RhythmicPrimitive(10, 1.0, dt)
-    tau, az, bz = 1.0 / (2 * np.pi), 25.0, 25.0 / 4
-    A = np.array([[0.0, 1.0], [-az * bz / tau**2, -az / tau]])
-    np.testing.assert_allclose(prim.Phi, scipy_expm(A * dt), rtol=1e-13, atol=1e-15)
+    az, bz = 25.0, 25.0 / 4
+    A = np.array([[0.0, 1.0], [-az * bz, -az]])
+    dphi = 2 * np.pi * dt
+    F, _ = prim.transition(0.3, dphi)
+    np.testing.assert_allclose(F, scipy_expm(A * dphi), rtol=1e-13, atol=1e-15)
 
 
 @pytest.mark.parametrize("dt, n_basis, period", [(1e-2, 10, 1.0), (1e-3, 10, 1.0),
