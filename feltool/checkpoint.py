@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from feltool.errors import FeltoolError
-from feltool.rundir import atomic_write, load_npz, save_npz
+from feltool.rundir import load_npz, save_npz, write_json
 
 _STOP = {"requested": False, "signal": signal.SIGINT}
 
@@ -94,8 +94,7 @@ class Checkpointer:
         # The arrays first, then the metadata that names them: a reader only trusts a pair.
         arrays_id = cycle
         save_npz(self.arrays, {**arrays, "arrays_id": np.array(arrays_id)})
-        atomic_write(self.meta, json.dumps({**meta, "cycle": cycle, "arrays_id": arrays_id},
-                                           separators=(",", ":")))
+        write_json(self.meta, {**meta, "cycle": cycle, "arrays_id": arrays_id}, compact=True)
         self._last, self.saved_cycle = time.monotonic(), cycle
 
     def clear(self) -> None:

@@ -53,10 +53,10 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
             break
         D = _jacobian(step, x, eps)
         x = x - np.linalg.solve(D - np.eye(len(x)), r)
-    fx, _ = step(x)
+    log = hyb.run_cycle(plant, x[:nv], x[nv:], P, Pv, Pa)  # its touchdowns and steps
+    fx = np.concatenate([log.q_end, log.v_end]) if step is python_step else step(x)[0]
     residual = float(np.abs(fx - x).max())
     D = _jacobian(step, x, eps)
-    log = hyb.run_cycle(plant, x[:nv], x[nv:], P, Pv, Pa)  # its touchdowns and steps
     eig = np.linalg.eigvals(D)
     order = np.argsort(-np.abs(eig))
     eig = eig[order]

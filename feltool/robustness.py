@@ -23,7 +23,7 @@ import csv
 import json
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -284,8 +284,7 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     known = scenarios_for(raw)
     scenarios = [known[n] for n in _names(args.scenarios, tuple(known), "--scenarios")]
     ranges = _ranges(args.range or [])
-    scenarios = [Scenario(s.name, s.path, ranges.get(s.name, s.values), s.unit, s.description,
-                          s.not_applicable) for s in scenarios]
+    scenarios = [replace(s, values=ranges.get(s.name, s.values)) for s in scenarios]
     seeds = parse_seeds(args.seeds) if args.seeds else exp.config.seed_list[:3]
     cycles = args.cycles or exp.config.sim.cycles
     out = args.out or Path("runs") / f"{exp.config.name}-robustness"
