@@ -125,11 +125,12 @@ class _Kin:
         self.hold = {name: self._hold(name) for name in (W.stance, W.swing)}
 
     def _rk4(self) -> ca.Function:
+        """Classical Runge-Kutta with the stance foot held: ``(q, v, tau, h, a1) -> (q1,
+        v1)``, ``a1`` the stance acceleration at ``(q, v)`` (its caller has it already)."""
         nv = self.nv
-        q, v, tau, h = ca.SX.sym("q", nv), ca.SX.sym("v", nv), ca.SX.sym("tau", nv), \
-            ca.SX.sym("h")
+        q, v, tau, a1 = (ca.SX.sym(s, nv) for s in ("q", "v", "tau", "a1"))
+        h = ca.SX.sym("h")
         f = lambda qq, vv: self.stance(qq, vv, tau)[0]  # noqa: E731
-        a1 = f(q, v)
         q2, v2 = q + 0.5 * h * v, v + 0.5 * h * a1
         a2 = f(q2, v2)
         q3, v3 = q + 0.5 * h * v2, v + 0.5 * h * a2
@@ -138,7 +139,7 @@ class _Kin:
         a4 = f(q4, v4)
         q1 = q + h / 6.0 * (v + 2 * v2 + 2 * v3 + v4)
         v1 = v + h / 6.0 * (a1 + 2 * a2 + 2 * a3 + a4)
-        return ca.Function("rk4", [q, v, tau, h], [q1, v1])
+        return ca.Function("rk4", [q, v, tau, h, a1], [q1, v1])
 
     def _hold(self, foot: str) -> ca.Function:
         """:meth:`feltool.contact.Contact.hold`: two Gauss-Newton steps on the foot's position
@@ -189,9 +190,9 @@ class _Kin:
         c, dc, acc = self.com(q, v, a)
         return c - self.feet[self.W.stance](q, v)[0][0], dc, acc
 
-    def allocation(self, q):
+    def allocation(self, q, Mq):
         """:meth:`PhysicalWalker.allocation_matrix`, ``(k, nv)``."""
-        Mi = ca.inv(self.M(q)) if isinstance(q, ca.MX) else ca.solve(self.M(q), ca.DM.eye(self.nv))
+        Mi = ca.inv(Mq) if isinstance(q, ca.MX) else ca.solve(Mq, ca.DM.eye(self.nv))
         J = self.feet[self.W.stance](q, 0 * q)[1]
         MiJ = ca.mtimes(Mi, J.T)
         Wm = Mi - ca.mtimes(MiJ, ca.solve(ca.mtimes(J, MiJ), MiJ.T))
@@ -246,7 +247,7 @@ class _Step:
         q, v, tau = (ca.MX.sym(s, nv) for s in ("q", "v", "tau"))
         h, st = ca.MX.sym("h"), ca.MX.sym("st", 4)
         stop, min_fn, max_ratio, min_clear = st[0], st[1], st[2], st[3]
-        _, F = kin.stance(q, v, tau)
+        a1, F = kin.stance(q, v, tau)
         Fx, Fz = F[0], F[1]
         min_fn = ca.fmin(min_fn, Fz)
         bad_fn = ca.logic_or(Fz <= chk.normal_force_min, Fz <= 0.0)
@@ -256,7 +257,7 @@ class _Step:
         stop = ca.if_else(ca.logic_and(stop == 0, ratio > chk.friction), _stop("friction"), stop)
         anchor = kin.feet[W.stance](q, v)[0]
         z0 = kin.feet[W.swing](q, v)[0][1]
-        q1, v1 = kin.rk4(q, v, tau, h)
+        q1, v1 = kin.rk4(q, v, tau, h, a1)
         q1, v1 = kin.hold[W.stance](q1, v1, anchor)
         sp = kin.feet[W.swing](q1, v1)[0]
         ahead = sp[0] - anchor[0]
@@ -282,13 +283,14 @@ class _Step:
         qs_, vs_ = ca.SX.sym("q", nv), ca.SX.sym("v", nv)
         height = ca.Function("height", [qs_, vs_], [kin.feet[W.swing](qs_, vs_)[0][1]])
         lo, hi = ca.MX(0), h
+        a1 = kin.stance(q, v, tau)[0]  # every bisection starts from (q, v)
         for _ in range(BISECTIONS):
             mid = 0.5 * (lo + hi)
-            qm, vm = kin.rk4(q, v, tau, mid)
+            qm, vm = kin.rk4(q, v, tau, mid, a1)
             above = height(qm, vm) > 0
             lo, hi = ca.if_else(above, mid, lo), ca.if_else(above, hi, mid)
         s = 0.5 * (lo + hi)
-        qs, vs = kin.rk4(q, v, tau, s)
+        qs, vs = kin.rk4(q, v, tau, s, a1)
         qs, vs = kin.hold[W.stance](qs, vs, anchor)
         p, _, dp, _ = kin.feet[W.swing](qs, vs)
         stop, min_fn, max_ratio, min_clear = st[0], st[1], st[2], st[3]
@@ -383,7 +385,8 @@ class _Control:
         rd = track * ca.mtimes(C, vr)
         sym_law = type("Law", (), {"C": C, "kp": kp, "kd": kd})
         u_fb, u_rows, u_err = feedback(CASADI, sym_law, q, v, r, rd, loop.error_rows)
-        A = kin.allocation(q)
+        Mq = kin.M(q)
+        A = kin.allocation(q, Mq)
         u = ca.mtimes(A, kin.rnea(qd, vd, ad) + u_fb)
         effort = ca.DM(np.where(np.isfinite(W.checks.effort), W.checks.effort, 1e300))
         over = ca.fabs(u) > effort
@@ -393,7 +396,7 @@ class _Control:
             over = ca.MX.zeros(k)
         tau = ca.mtimes(kin.B, u)
         a_now = kin.stance(q, v, tau)[0]
-        inert = ca.mtimes(kin.M(q), ar - a_now)
+        inert = ca.mtimes(Mq, ar - a_now)
         xc_acc = kin.com_x(q, v, a_now)[2]
         phase_acc_next = ca.if_else(x_rate > 1e-9, (xc_acc - xa_f * rate**2) / x_rate, 0.0)
         # the metric's largest error: forward (not reference) desired against the system

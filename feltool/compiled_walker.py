@@ -37,7 +37,7 @@ from feltool.compiled_graph import (
     symbolic_forward,
     symbolic_frames,
 )
-from feltool.cycle import feedback, fel_sums, fel_update, wrap
+from feltool.cycle import advance, feedback, fel_sums, fel_update, wrap
 from feltool.dynamics.casadi_backend import (
     symbolic_frame_kinematics,
     symbolic_rnea,
@@ -154,16 +154,8 @@ def walker_step_function(exp, plant, lay) -> ca.Function:
             tau = B @ ca.solve(B.T @ MiB, MiB.T @ tau)
     else:
         tau = ca.DM(H.actuated) * tau
-    forward = symbolic_forward(plant)
-    h = dt / H.substeps
-    q1, v1 = q, v
-    for _ in range(H.substeps):
-        a = forward(q1, v1, tau)
-        if H.integrator == "semi_implicit_euler":
-            v1 = v1 + h * a
-            q1 = q1 + h * v1
-        else:
-            q1, v1 = q1 + h * v1, v1 + h * a
+    q1, v1 = advance(CASADI, symbolic_forward(plant), q, v, tau, dt / H.substeps, H.substeps,
+                     H.integrator == "semi_implicit_euler")
     finite = (ca.sum1(ca.fabs(q1)) + ca.sum1(ca.fabs(v1))) < np.inf
     fall_now = 1 - finite
     if W is not None and W.fall_row is not None and np.isfinite(W.fall_max):
