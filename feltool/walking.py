@@ -387,10 +387,11 @@ class PhysicalLoop:
                 tau = W.B @ (u if dist is None else dist.apply(u))
                 # the inertial part of the feedforward's error, M (a_r - a): what the feedback
                 # has not (yet) produced of the reference's acceleration (PhysicalLoop doc)
-                M = pin.crba(contact.model, contact.data, q)
-                M = np.triu(M) + np.triu(M, 1).T
                 a = a_phase = contact.stance(q, v, tau, W.stance).a
-                if dist is not None:  # as measured: the known model's M at qm, a measured;
+                if dist is None:
+                    M = pin.crba(contact.model, contact.data, q)
+                    M = np.triu(M) + np.triu(M, 1).T
+                else:  # as measured: the known model's M at qm, a measured;
                     M, a = dist.inertia(qm), dist.acceleration(a)  # the phase's: predicted
                     a_phase = W.contact.stance(qm, vm, W.B @ u, W.stance).a
                 Inert[k] = M @ (ar - a)
