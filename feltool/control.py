@@ -122,17 +122,18 @@ class FeedbackLaw:
 
     def reference(self, q_d: np.ndarray, v_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`references` at one sample: :math:`r, \\dot r` ``(nv,)`` for the desired
-        state ``q_d, v_d`` ``(nv,)`` (the same numbers, without the 2-D temporaries)."""
-        tracked, held = self.reference_rows()
+        state ``q_d, v_d`` ``(nv,)`` (the same numbers, without the 2-D temporaries; called
+        every control step, it keeps its rows from the first call: a law is not changed once
+        a loop runs it)."""
+        if getattr(self, "_rows", None) is None:
+            self._rows = self.reference_rows()
+        tracked, held = self._rows
         return tracked @ q_d + held, tracked @ v_d
 
     def reference_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """C with only the tracking rows, and the stabilizing rows' targets (0 elsewhere):
         :math:`r = C_{track} q_d + r_{held}`."""
-        if getattr(self, "_tracked", None) is None:
-            self._tracked = self.C * self.tracking[:, None]
-            self._held = np.where(self.stabilizing, self.targets, 0.0)
-        return self._tracked, self._held
+        return self.C * self.tracking[:, None], np.where(self.stabilizing, self.targets, 0.0)
 
     def feedback(self, q: np.ndarray, v: np.ndarray, r: np.ndarray, rd: np.ndarray) -> np.ndarray:
         """Feedback torques :math:`u_{fb}` in [N m] at one state."""
