@@ -95,13 +95,7 @@ class DisturbedLoop(ClosedLoop):
             Vm[k] = v + Nv[k]
             U[k], Urows[k], Uerr[k] = self.law.terms(Qm[k], Vm[k], R[k], Rd[k], self.error_rows)
             Cmd[k] = S * (u_ff[k] + U[k])
-            if d:
-                if self.buffer is None:
-                    self.buffer = np.repeat(Cmd[k][None], d, axis=0)
-                applied = self.buffer[0].copy()
-                self.buffer = np.vstack([self.buffer[1:], Cmd[k][None]])
-            else:
-                applied = Cmd[k]
+            applied, self.buffer = delayed(self.buffer, Cmd[k], d)
             Tau[k] = applied + S * W[k]
             q, v = self.advance(q, v, Tau[k])
         log = CycleLog(Qm, Vm, U, q, v, Urows, Uerr)
@@ -117,6 +111,17 @@ class DisturbedLoop(ClosedLoop):
     def restore_state(self, saved) -> None:
         if "disturbance_buffer" in saved:
             self.buffer = np.array(saved["disturbance_buffer"], dtype=float)
+
+
+def delayed(buffer: np.ndarray | None, command: np.ndarray, d: int):
+    """``(applied, buffer)``: the command ``d`` control steps late (the first ``d`` steps
+    repeat the first command), and the buffer of the ``d`` commands still to come (None
+    before the first command; unused when ``d`` is 0)."""
+    if not d:
+        return command, buffer
+    if buffer is None:
+        buffer = np.repeat(command[None], d, axis=0)
+    return buffer[0].copy(), np.vstack([buffer[1:], command[None]])
 
 
 class WalkerDisturbance:
@@ -179,15 +184,8 @@ class WalkerDisturbance:
 
     def apply(self, u: np.ndarray) -> np.ndarray:
         """The motor torques the plant receives for the command ``u`` ``(k,)`` in [N m]."""
-        d = self.spec.input_delay_steps
-        if d:
-            if self.buffer is None:
-                self.buffer = np.repeat(u[None], d, axis=0)
-            delayed = self.buffer[0].copy()
-            self.buffer = np.vstack([self.buffer[1:], u[None]])
-        else:
-            delayed = u
-        applied = delayed + self.rng.normal(0.0, 1.0, len(u)) * self.spec.torque_noise
+        late, self.buffer = delayed(self.buffer, u, self.spec.input_delay_steps)
+        applied = late + self.rng.normal(0.0, 1.0, len(u)) * self.spec.torque_noise
         self.applied.append(applied)
         return applied
 
