@@ -307,10 +307,19 @@ class PositionsDemo(Strict):
             raise ValueError("give either 'q' or 'csv' (with 'column')")
         if self.csv is not None and self.column is None:
             raise ValueError("'csv' needs 'column' (the header of the column to read)")
-        if self.q is not None and len(self.q) <= 2 * self.periods:
-            raise ValueError(f"{len(self.q)} samples cannot resolve one harmonic over "
-                             f"{self.periods} period(s); give more than {2 * self.periods}")
+        problem = too_few_samples(len(self.q), self.periods) if self.q is not None else None
+        if problem:
+            raise ValueError(problem)
         return self
+
+
+def too_few_samples(n: int, periods: int) -> str | None:
+    """Why ``n`` position samples spanning ``periods`` periods cannot be a demo (too few to
+    resolve one harmonic), or None."""
+    if n <= 2 * periods:
+        return (f"{n} samples cannot resolve one harmonic over {periods} period(s); give more "
+                f"than {2 * periods}")
+    return None
 
 
 def _demo_kind(value: Any) -> str:

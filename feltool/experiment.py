@@ -26,6 +26,7 @@ from feltool.config import (
     apply_overrides,
     parse_config,
     read_yaml,
+    too_few_samples,
 )
 from feltool.control import FeedbackLaw, FrameAngle
 from feltool.disturbances import problems as disturbance_problems
@@ -653,10 +654,9 @@ def _positions_series(d, source: Path | None, where: str, src: str | None) -> np
         if not path.is_absolute() and source is not None:
             path = source.parent / path
         q = _csv_column(path, d.column, where, src)
-        if len(q) <= 2 * d.periods:
-            raise ConfigError([(f"{where}.csv", f"{len(q)} samples cannot resolve one harmonic "
-                                f"over {d.periods} period(s); give more than {2 * d.periods}")],
-                              src)
+        problem = too_few_samples(len(q), d.periods)
+        if problem:
+            raise ConfigError([(f"{where}.csv", problem)], src)
     return spectral.from_samples(np.asarray(q, dtype=float), d.periods)
 
 
