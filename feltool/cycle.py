@@ -92,13 +92,29 @@ def advance(xp, forward, q, v, tau, h: float, substeps: int, semi_implicit: bool
     return q, v
 
 
+def plain(substeps: int, semi_implicit: bool, limits=None, integrate=None) -> bool:
+    """True for the common control step: one semi-implicit Euler sub-step of plain vectors with
+    no limit to apply (the loops then skip :func:`advance`'s option checks)."""
+    applies = limits is not None and (limits.torques == "saturate" or limits.joints == "enforce")
+    return substeps == 1 and semi_implicit and integrate is None and not applies
+
+
+def euler_map(h: float, nv: int) -> tuple[np.ndarray, np.ndarray]:
+    r"""The plain step (:func:`plain`) as one linear map of the state :math:`x = (q, \dot q)`
+    and the acceleration: :math:`x^+ = \Phi x + \Gamma \ddot q` with :math:`\Phi =
+    \begin{pmatrix} I & hI \\ 0 & I \end{pmatrix}`, :math:`\Gamma = \begin{pmatrix} h^2 I
+    \\ hI \end{pmatrix}` (:math:`\dot q^+ = \dot q + h\ddot q,\ q^+ = q + h\dot q^+`;
+    ``h`` in [s]); the same numbers as :func:`advance`'s to rounding."""
+    eye, zero = np.eye(nv), np.zeros((nv, nv))
+    return np.block([[eye, h * eye], [zero, eye]]), np.vstack([h * h * eye, h * eye])
+
+
 def stepper(xp, forward, h: float, substeps: int, semi_implicit: bool, limits=None,
             integrate=None):
     """:func:`advance` with its options fixed once for a loop: ``(q, v, tau) -> (q, v)``. The
-    common step (one semi-implicit Euler sub-step, plain vectors, no limit to apply) skips the
-    per-call option checks; its numbers are :func:`advance`'s."""
-    applies = limits is not None and (limits.torques == "saturate" or limits.joints == "enforce")
-    if substeps == 1 and semi_implicit and integrate is None and not applies:
+    plain step (:func:`plain`) skips the per-call option checks; its numbers are
+    :func:`advance`'s."""
+    if plain(substeps, semi_implicit, limits, integrate):
         def step(q, v, tau):
             v = v + h * forward(q, v, tau)
             return q + h * v, v
@@ -197,4 +213,5 @@ def fel_sums(xp, sens: list, deriv: list, E, rows=None):
     return g, xp.blocks(blocks)
 
 
-__all__ = ["advance", "clamp", "feedback", "fel_sums", "fel_update", "stepper", "wrap"]
+__all__ = ["advance", "clamp", "euler_map", "feedback", "fel_sums", "fel_update", "plain",
+           "stepper", "wrap"]

@@ -8,6 +8,7 @@ checkpoints, and the seed's summary.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -454,31 +455,32 @@ def _outcome(exp: Experiment, log: CycleLog, Qd: np.ndarray, theta_next,
              weight: np.ndarray | None = None) -> CycleOutcome:
     """The cycle's metrics: means over its steps, each weighted by the phase it covers
     (``weight``, :class:`~feltool.phase.PhaseSamples`; None: plain means)."""
-    tracked, held = exp.law.reference_rows()
-    R = Qd @ tracked.T + held
-    controlled = exp.law.tracking | exp.law.stabilizing
-    nv = log.q_end.shape[0]
+    law = exp.law
+    tracked, held = law.reference_rows()
+    controlled = law.tracking | law.stabilizing
+    nv, n = log.q_end.shape[0], len(log.q)
     # a walker's cycle that stopped (not walking) before its first sample logs no rows: its
     # means are zero, not a reduction over nothing
-    if weight is None:
-        average = lambda X: X.mean(axis=0)  # noqa: E731
+    if n == 0:
+        average = lambda X: np.zeros(nv)  # noqa: E731
+    elif weight is None:
+        average = lambda X: X.sum(axis=0) / n  # noqa: E731  (np.mean's numbers)
     else:
-        average = lambda X: (X * weight[:, None]).sum(axis=0) / weight.sum()  # noqa: E731
-    mean = lambda X: average(np.abs(X)) if len(X) else np.zeros(nv)  # noqa: E731
+        w, total = weight[:, None], weight.sum()
+        average = lambda X: (X * w).sum(axis=0) / total  # noqa: E731
     with np.errstate(all="ignore"):
-        err = np.abs(wrap(R - exp.law.quantity(log.q)))[:, controlled]
-        u_fb = mean(log.u_fb)
-        u_rows = u_fb if log.u_rows is log.u_fb else mean(log.u_rows)
+        err = wrap(Qd @ tracked.T + held - law.quantity(log.q))[:, controlled]
+        u_fb = average(np.abs(log.u_fb))
+        u_rows = u_fb if log.u_rows is log.u_fb else average(np.abs(log.u_rows))
+        # a NaN or an infinity among the velocities is also their largest magnitude
+        max_speed = float(np.abs(log.v).max()) if n else 0.0
+        finite = (np.isfinite(max_speed) and bool(np.isfinite(log.q).all())
+                  and math.isfinite(sum(log.q_end.tolist())))
         return CycleOutcome(
-            theta_next, log.q_end, log.v_end, u_fb,
-            np.sqrt(average((Qd - log.q) ** 2)) if len(log.q) else np.zeros(nv),
-            float(err.max()) if err.size else 0.0,
-            float(np.abs(log.v).max()) if log.v.size else 0.0,
-            bool(np.all(np.isfinite(log.q)) and np.all(np.isfinite(log.v))
-                 and np.all(np.isfinite(log.q_end))),
-            lambda: (log, Qd),
-            float(u_rows[exp.law.stabilizing].sum()),
-            float(mean(log.u_err).sum()),
+            theta_next, log.q_end, log.v_end, u_fb, np.sqrt(average((Qd - log.q) ** 2)),
+            float(max(err.max(), -err.min())) if err.size else 0.0, max_speed, finite,
+            lambda: (log, Qd), float(u_rows[law.stabilizing].sum()),
+            float(average(np.abs(log.u_err)).sum()),
             limit_hits=getattr(log, "limit_hits", None))
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from feltool.control import FeedbackLaw
-from feltool.cycle import advance, stepper
+from feltool.cycle import advance, euler_map, plain, stepper
 from feltool.dynamics import Dynamics
 from feltool.ops import NUMPY
 
@@ -131,13 +131,21 @@ class ClosedLoop:
         B = law.kp * R + law.kd * Rd
         F = S * (u_ff + B)
         SK = S[:, None] * K
-        X = np.empty((n, 2 * nv))
-        lim = self.limits
-        step = stepper(NUMPY, self.dynamics.forward, self.dt / self.substeps, self.substeps,
-                       self.integrator == "semi_implicit_euler", lim)
-        for x, f in zip(X, F):
-            x[:nv], x[nv:] = q, v
-            q, v = step(q, v, f - SK.dot(x))  # (.dot: less call overhead than @)
+        lim, semi = self.limits, self.integrator == "semi_implicit_euler"
+        X = np.empty((n + 1, 2 * nv))
+        X[0, :nv], X[0, nv:] = q, v
+        if plain(self.substeps, semi, lim):  # x+ = Phi x + Gamma a, written into the log
+            Phi, Gamma = euler_map(self.dt, nv)
+            forward = self.dynamics.forward
+            for x, f, qk, vk, x_next in zip(X, F, X[:, :nv], X[:, nv:], X[1:]):
+                Gamma.dot(forward(qk, vk, f - SK.dot(x)), out=x_next)
+                x_next += Phi.dot(x)
+        else:
+            step = stepper(NUMPY, self.dynamics.forward, self.dt / self.substeps,
+                           self.substeps, semi, lim)
+            for x, f, x_next in zip(X, F, X[1:]):  # (.dot: less call overhead than @)
+                x_next[:nv], x_next[nv:] = step(x[:nv], x[nv:], f - SK.dot(x))
+        q, v, X = X[n, :nv].copy(), X[n, nv:].copy(), X[:n]
         U = B - X @ K.T
         log = CycleLog(X[:, :nv], X[:, nv:], U, q, v, U, U * self.error_rows)
         if lim is not None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pinocchio as pin
 
@@ -30,6 +32,8 @@ class PinocchioDynamics:
         first = pin.aba(model, self.data, q0, z, z)
         second = pin.aba(model, self.data, q0, z, np.ones(model.nv))
         self._aba_owns = first is not second and not np.shares_memory(first, second)
+        if self._aba_owns:  # the loops' per-step call goes straight to Pinocchio
+            self.forward = partial(pin.aba, model, self.data)
 
     def inverse(self, q, v, a):
         return pin.rnea(self.model, self.data, q, v, a).copy()
@@ -57,10 +61,11 @@ class PinocchioDynamics:
         ``(n, nv, nv)``: one pass of Pinocchio's RNEA derivatives per sample."""
         n, nv = len(Q), self.nv
         tau, D = np.empty((n, nv)), np.empty((n, 3, nv, nv))
-        model, data, derivatives = self.model, self.data, pin.computeRNEADerivatives
-        for q, v, a, d, t in zip(Q, V, A, D, tau):  # (views into data: copied at once)
-            d[...] = derivatives(model, data, q, v, a)
-            t[...] = data.tau
+        derivatives = partial(pin.computeRNEADerivatives, self.model, self.data)
+        tau_now = self.data.tau  # (views into data, which each call overwrites: copied at once)
+        for q, v, a, d, t in zip(Q, V, A, D, tau):
+            d[0], d[1], d[2] = derivatives(q, v, a)
+            t[:] = tau_now
         M = D[:, 2]
         lower, upper = self._lower, self._lower[::-1]
         M[:, lower[0], lower[1]] = M[:, upper[0], upper[1]]  # Pinocchio fills the upper triangle
