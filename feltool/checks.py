@@ -33,6 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.bounds import MAX_RATE_HZ
+from feltool.dynamics.pinocchio import mass_matrix
 
 if TYPE_CHECKING:
     from feltool.control import FeedbackLaw
@@ -216,8 +217,7 @@ def timestep_problems(exp: Experiment) -> list[tuple[str, str]]:
     cfg, model, law = exp.config, exp.robot.model, exp.law
     q = start_pose(exp)
     data = model.createData()
-    M = pin.crba(model, data, q)
-    Minv = np.linalg.inv(np.triu(M) + np.triu(M, 1).T)
+    Minv = np.linalg.inv(mass_matrix(model, data, q))
     J, T = _torque_map(law, q)
     c = integrator_factor(cfg.sim.integrator, cfg.sim.substeps)
     dt = cfg.dt

@@ -32,6 +32,7 @@ import pinocchio as pin
 
 from feltool.config import DisturbanceConfig
 from feltool.dynamics import Dynamics, make_dynamics
+from feltool.dynamics.pinocchio import mass_matrix
 from feltool.simulate import ClosedLoop, CycleLog
 
 if TYPE_CHECKING:
@@ -192,8 +193,7 @@ class WalkerDisturbance:
     def inertia(self, qm: np.ndarray) -> np.ndarray:
         """The known model's joint-space inertia matrix at the measured ``qm``."""
         c = self.walker.contact
-        M = pin.crba(c.model, c.data, qm)
-        return np.triu(M) + np.triu(M, 1).T
+        return mass_matrix(c.model, c.data, qm)
 
     def acceleration(self, a: np.ndarray) -> np.ndarray:
         """The measured acceleration for the plant's true ``a`` at this control step."""

@@ -31,13 +31,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from itertools import repeat
 
 import numpy as np
 import pinocchio as pin
+import scipy.linalg
 
 from feltool.control import FeedbackLaw
 from feltool.cycle import stepper
 from feltool.dynamics import Dynamics
+from feltool.dynamics.pinocchio import mass_matrix
 from feltool.ops import NUMPY
 
 
@@ -46,7 +49,8 @@ class Allocation:
     r"""Motors and the allocation of joint torques onto them.
 
     Attributes:
-        B: ``(nv, k)`` generalized force of each motor per unit torque (columns :math:`b_m`).
+        B: ``(nv, k)`` generalized force of each motor per unit torque (columns :math:`b_m`,
+            linearly independent).
         rule: ``inertia_weighted``: :math:`u = (B^\top M^{-1} B)^{-1} B^\top M^{-1}\tau` (the
             motor torques whose accelerations are closest, in the kinetic-energy metric, to those
             :math:`\tau` would produce); ``pseudo_inverse``: :math:`u = B^+\tau`.
@@ -61,22 +65,30 @@ class Allocation:
     def __post_init__(self):
         self.data = self.model.createData()
         self._pinv = np.linalg.pinv(self.B)
-        self._lower = np.tril_indices(self.model.nv, -1)
+        #: ``(nv, nv - k)``: the directions no motor acts on, :math:`N^\top B = 0`
+        self.N = scipy.linalg.null_space(self.B.T)
 
     def joint_torque(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """The joint torques :math:`B u` in [N m] the motors deliver for a wanted ``tau``
-        (:math:`M^{-1}` by Pinocchio's ``computeMinverse``)."""
+        r"""The joint torques :math:`B u` in [N m] the motors deliver for a wanted ``tau``.
+
+        ``inertia_weighted``: :math:`B u` is the projection of :math:`\tau` onto the motors'
+        range along :math:`M N` (the complement in the metric :math:`M^{-1}`), so
+        :math:`B u = \tau - M N (N^\top M N)^{-1} N^\top \tau` -- the same torques as the
+        formula above, from Pinocchio's CRBA (M, not its inverse) and a solve of the size of
+        the unactuated directions (one for a walker's free pivot)."""
         if self.rule == "pseudo_inverse":
             return self.B @ (self._pinv @ tau)
-        Mi = pin.computeMinverse(self.model, self.data, q)
-        Mi[self._lower] = Mi.T[self._lower]  # Pinocchio fills the upper triangle
-        MiB = Mi @ self.B
-        return self.B @ _solve_small(self.B.T @ MiB, MiB.T @ tau)
+        N = self.N
+        if N.shape[1] == 0:  # a motor for every direction: B u = tau
+            return tau
+        MN = mass_matrix(self.model, self.data, q).dot(N)
+        return tau - MN.dot(_solve_small(N.T.dot(MN), N.T.dot(tau)))
 
 
 def _solve_small(S: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``S^-1 r`` for a symmetric positive definite ``S``: one or two motors by the closed-form
-    inverse (numpy's solve costs microseconds of call overhead per control step), else LU."""
+    """``S^-1 r`` for a symmetric positive definite ``S``: one or two unknowns by the
+    closed-form inverse (numpy's solve costs microseconds of call overhead per control step),
+    else LU."""
     if len(r) == 1:
         return r / S[0, 0]
     if len(r) == 2:
@@ -161,19 +173,24 @@ class Walker:
         return self.R @ q, self.R @ v
 
     def placement_offset(self, q: np.ndarray, v: np.ndarray, qd: np.ndarray, vd: np.ndarray,
-                         elapsed: float, Ts: float) -> tuple[np.ndarray, np.ndarray]:
-        """Foot placement: offsets ``(dq, dv)`` of the desired joint state, ``elapsed`` [s] into a
-        step of nominal length ``Ts`` [s]. The absolute angle ``angle_index`` moves by
-        ``gain * e * r(s)``, with ``e`` the tracking error of absolute angle ``follow_index``
-        (actual - desired) and ``r(s) = 3 s^2 - 2 s^3``, ``s = elapsed / Ts`` in [0, 1]; the
-        velocity offset is its time derivative (the desired acceleration is left unchanged)."""
-        i, j, gain = self.placement
+                         elapsed: float, Ts: float) -> tuple[float, float]:
+        """Foot placement: the desired joint state moves by ``(a c, b c)``, ``elapsed`` [s] into
+        a step of nominal length ``Ts`` [s], with ``c`` the joint-space direction of absolute
+        angle ``angle_index`` (:attr:`placement_direction`); returns ``(a, b)``. The angle moves
+        by ``a = gain * e * r(s)``, with ``e`` the tracking error of absolute angle
+        ``follow_index`` (actual - desired) and ``r(s) = 3 s^2 - 2 s^3``, ``s = elapsed / Ts``
+        in [0, 1]; ``b`` is its time derivative (the desired acceleration is left unchanged)."""
+        _, j, gain = self.placement
         s = min(max(elapsed / Ts, 0.0), 1.0)
-        e, ev = float(self.A[j] @ (q - qd)), float(self.A[j] @ (v - vd))
+        e, ev = float(self.A[j].dot(q - qd)), float(self.A[j].dot(v - vd))
         r = 3 * s**2 - 2 * s**3
         rd = (6 * s - 6 * s**2) / Ts
-        col = self.A_inv[:, i]
-        return gain * e * r * col, gain * (ev * r + e * rd) * col
+        return gain * e * r, gain * (ev * r + e * rd)
+
+    @property
+    def placement_direction(self) -> np.ndarray:
+        """The joint angles that move the placed absolute angle alone, :math:`A^{-1} e_i`."""
+        return self.A_inv[:, self.placement[0]]
 
     def guard(self, q: np.ndarray) -> bool:
         return bool(self.guard_sign * (self.guard_row @ q - self.guard_value) >= 0.0)
@@ -254,62 +271,91 @@ class HybridLoop:
 
     def run_cycle(self, plant: Dynamics, q: np.ndarray, v: np.ndarray, P: np.ndarray,
                   Pv: np.ndarray, Pa: np.ndarray) -> HybridLog:
-        """One cycle from ``(q, v)`` with desired gait-coordinate trajectories ``P, Pv, Pa``
-        ``(n, nv)``; ``plant`` is the simulated world (the known model, or a changed one)."""
+        r"""One cycle from ``(q, v)`` with desired gait-coordinate trajectories ``P, Pv, Pa``
+        ``(n, nv)``; ``plant`` is the simulated world (the known model, or a changed one).
+
+        A linear law's feedback is affine in the state, :math:`u_{fb} = b_k - K_P C q - K_D C
+        \dot q` with :math:`b_k = K_P r_k + K_D \dot r_k` computed for every step and stance
+        label before the loop (the foot placement adds :math:`a K_P C c + b K_D C c`), so a
+        step is a few vector operations around Pinocchio's RNEA, CRBA (allocation) and ABA."""
         n, nv = P.shape
         W, law, alloc = self.walker, self.law, self.allocation
-        Q, V, U, Qd, Vd, Ad, Urows, Uerr = (np.zeros((n, nv)) for _ in range(8))
-        # a linear law's terms (feltool.cycle.feedback) are one vector per step: its own
-        # outputs are the joint torques, the learning signal their error rows
-        linear = law.linear
-
-        def log(k_end: int, fall: str | None) -> HybridLog:
-            u_rows, u_err = Urows[:k_end], Uerr[:k_end]
-            if linear:
-                u_rows, u_err = U[:k_end], np.where(self.error_rows > 0, U[:k_end], 0.0)
-            return HybridLog(Q[:k_end], V[:k_end], U[:k_end], q, v, Qd[:k_end], Vd[:k_end],
-                             Ad[:k_end], labels[:k_end], impacts, fall, u_rows, u_err)
-
-        labels = np.zeros(n, dtype=int)
+        Q, V, U, Urows, Uerr = (np.zeros((n, nv)) for _ in range(5))
+        placing = W is not None and W.placement is not None
+        offsets = np.zeros((n, 2)) if placing else None  # (a, b) of the foot placement
+        # the desired joint state at each stance label, q_d = G_s p_d, and its references
+        G = W.G if W else (np.eye(nv),)
+        desired = [(P @ g.T, Pv @ g.T, Pa @ g.T) for g in G]
+        tracked, held = law.reference_rows()
+        linear = law.linear  # its own outputs are the joint torques, the learning signal their
+        if linear:           # error rows (feltool.cycle.feedback), formed after the loop
+            Kq, Kv = law.kp[:, None] * law.C, law.kd[:, None] * law.C
+            affine = [law.kp * (qd @ tracked.T + held) + law.kd * (vd @ tracked.T)
+                      for qd, vd, _ in desired]
+        else:
+            affine = [repeat(None, n)] * len(desired)
+        rows = [list(zip(*d, b)) for d, b in zip(desired, affine)]
+        if placing:
+            c = W.placement_direction
+            kc, kdc = law.kp * (tracked @ c), law.kd * (tracked @ c)
         impacts, stance, fall = [], 0, None
         h = self.dt / self.substeps
-        semi = self.integrator == "semi_implicit_euler"
         Ts = n * self.dt / W.steps_per_cycle if W else None
+        lo = hi = np.inf
+        if W:
+            lo, hi = W.window[0] * Ts - 1e-9, W.window[1] * Ts - 1e-9
         k_step = 0  # first control step of the current step
-        step = stepper(NUMPY, plant.forward, h, self.substeps, semi)
-        if W:  # the desired joint state at both stance labels, q_d = G_s p_d, row by row
-            GP = [list(zip(P @ G.T, Pv @ G.T, Pa @ G.T)) for G in W.G]
+        step = stepper(NUMPY, plant.forward, h, self.substeps,
+                       self.integrator == "semi_implicit_euler")
+        inverse = self.known.inverse
+        fallen = W.fallen if W else lambda q, v: fall_reason(q, v, None, np.inf)
+        k_end = n
         for k in range(n):
-            if W:
-                qd, vd, ad = GP[stance][k]
-                if W.placement is not None:
-                    dq, dv = W.placement_offset(q, v, qd, vd, (k - k_step) * self.dt, Ts)
-                    qd, vd = qd + dq, vd + dv
+            qd, vd, ad, b = rows[stance][k]
+            Q[k], V[k] = q, v
+            if placing:
+                a_, b_ = offsets[k] = W.placement_offset(q, v, qd, vd, (k - k_step) * self.dt,
+                                                          Ts)
+                qd, vd = qd + a_ * c, vd + b_ * c
+                if linear:
+                    b = b + a_ * kc + b_ * kdc
+            if linear:
+                u = U[k] = b - Kq.dot(q) - Kv.dot(v)
             else:
-                qd, vd, ad = P[k], Pv[k], Pa[k]
-            Q[k], V[k], Qd[k], Vd[k], Ad[k], labels[k] = q, v, qd, vd, ad, stance
-            r, rd = law.reference(qd, vd)
-            if linear:  # u_fb = u_rows, and u_err from them after the loop
-                U[k] = law.feedback(q, v, r, rd)
-            else:
-                U[k], Urows[k], Uerr[k] = law.terms(q, v, r, rd, self.error_rows)
-            tau = self.known.inverse(qd, vd, ad) + U[k]
+                r, rd = law.reference(qd, vd)
+                u, Urows[k], Uerr[k] = law.terms(q, v, r, rd, self.error_rows)
+                U[k] = u
+            tau = inverse(qd, vd, ad) + u
             tau = alloc.joint_torque(q, tau) if alloc else self.actuated * tau
             q, v = step(q, v, tau)
-            fall = W.fallen(q, v) if W else fall_reason(q, v, None, np.inf)
+            fall = fallen(q, v)
             if fall:
-                return log(k + 1, fall)
-            if W and len(impacts) < W.steps_per_cycle:
-                t = (k + 1) * self.dt
-                j = len(impacts)
-                lo, hi = (j + W.window[0]) * Ts, (j + W.window[1]) * Ts
-                by_guard = t >= lo - 1e-9 and W.guard(q)
-                if by_guard or t >= hi - 1e-9:
+                k_end = k + 1
+                break
+            t = (k + 1) * self.dt
+            if t >= lo:
+                by_guard = W.guard(q)
+                if by_guard or t >= hi:
                     impacts.append((k + 1, bool(by_guard), W.foot_x(q)))
                     q, v = W.apply_impact(q, v)
                     stance = 1 - stance
                     k_step = k + 1
-        return log(n, None)
+                    j = len(impacts)
+                    lo, hi = ((j + W.window[0]) * Ts - 1e-9, (j + W.window[1]) * Ts - 1e-9) \
+                        if j < W.steps_per_cycle else (np.inf, np.inf)
+        labels = np.zeros(k_end, dtype=int)
+        for k_impact, _, _ in impacts:
+            labels[k_impact:] ^= 1
+        steps = np.arange(k_end)
+        Qd, Vd, Ad = (np.stack([d[i] for d in desired])[labels, steps] for i in range(3))
+        if placing:  # the same numbers as the loop's q_d + a c
+            Qd, Vd = Qd + offsets[:k_end, :1] * c, Vd + offsets[:k_end, 1:] * c
+        U = U[:k_end]
+        u_rows, u_err = Urows[:k_end], Uerr[:k_end]
+        if linear:
+            u_rows, u_err = U, np.where(self.error_rows > 0, U, 0.0)
+        return HybridLog(Q[:k_end], V[:k_end], U, q, v, Qd, Vd, Ad, labels, impacts, fall,
+                         u_rows, u_err)
 
     def jacobian_derivatives(self, log: HybridLog) -> tuple:
         """``(u_ff, Dq G, Dv G, M G)`` along the cycle: the inverse model's derivatives with

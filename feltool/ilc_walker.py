@@ -43,9 +43,9 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pinocchio as pin
 
 from feltool.disturbances import disturbed_plant, walker_disturbance
+from feltool.dynamics.pinocchio import mass_matrix
 from feltool.ilc import ILC_UPDATES, OWN_RUNNER, NormOptimalILC, PTypeILC, with_state
 from feltool.walking import StepStats
 
@@ -144,8 +144,7 @@ class OrbitStep:
         a = c.stance(q, v, tau, W.stance).a
         err = u_err
         if exp.config.learning.error_estimate == "inverse_dynamics":
-            M = pin.crba(c.model, c.data, q)
-            M = np.triu(M) + np.triu(M, 1).T
+            M = mass_matrix(c.model, c.data, q)
             err = err + M @ (ar - a)
         phase_acc = L._phase_acceleration(W.com_x(q, v, a)[2]) if mechanical else 0.0
         touched = False

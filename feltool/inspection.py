@@ -22,6 +22,7 @@ import pinocchio as pin
 import yaml
 
 from feltool.control import FrameAngle
+from feltool.dynamics.pinocchio import mass_matrix
 from feltool.errors import InputError
 from feltool.robot import Robot
 
@@ -229,8 +230,7 @@ def skeleton_gains(model: pin.Model, q: np.ndarray, rows: np.ndarray, cols: list
     :math:`k_P = m_i \omega^2 + 2 \|\partial g/\partial q\|_2`,
     :math:`k_D = 2 \sqrt{m_i k_P}`."""
     data = model.createData()
-    M = pin.crba(model, data, q)
-    M = np.triu(M) + np.triu(M, 1).T
+    M = mass_matrix(model, data, q)
     G = pin.computeGeneralizedGravityDerivatives(model, data, q)[np.ix_(cols, cols)]
     Minv = np.linalg.inv(M[np.ix_(cols, cols)])
     k_g = float(np.linalg.norm(G, 2))

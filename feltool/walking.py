@@ -41,6 +41,7 @@ from scipy.optimize import brentq
 from feltool.contact import Contact
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics
+from feltool.dynamics.pinocchio import mass_matrix
 from feltool.errors import RobotError
 from feltool.hybrid import HybridLog, fall_reason
 from feltool.walker_model import WalkerModel
@@ -215,8 +216,7 @@ class PhysicalWalker:
         """``A = (B^T W B)^{-1} B^T W``, ``(k, nv)``: motor torques per wanted generalized
         force at ``q``."""
         c = self.contact
-        M = pin.crba(c.model, c.data, q)
-        M = np.triu(M) + np.triu(M, 1).T
+        M = mass_matrix(c.model, c.data, q)
         J = c.jacobian(q, self.stance)
         Mi = np.linalg.inv(M)
         MiJ = Mi @ J.T
@@ -389,8 +389,7 @@ class PhysicalLoop:
                 # has not (yet) produced of the reference's acceleration (PhysicalLoop doc)
                 a = a_phase = contact.stance(q, v, tau, W.stance).a
                 if dist is None:
-                    M = pin.crba(contact.model, contact.data, q)
-                    M = np.triu(M) + np.triu(M, 1).T
+                    M = mass_matrix(contact.model, contact.data, q)
                 else:  # as measured: the known model's M at qm, a measured;
                     M, a = dist.inertia(qm), dist.acceleration(a)  # the phase's: predicted
                     a_phase = W.contact.stance(qm, vm, W.B @ u, W.stance).a

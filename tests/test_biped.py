@@ -8,6 +8,7 @@ import pinocchio as pin
 import pytest
 
 from feltool.experiment import load_experiment, run_seed
+from feltool.hybrid import Allocation
 from feltool.robot import load_robot
 
 from .conftest import CONFIGS
@@ -116,6 +117,26 @@ def test_rigid_impact_is_inelastic_and_conserves_momentum_about_the_new_foot(bip
             assert E_after <= E_before + 1e-9
     finally:
         W.impact = "relabel"
+
+
+@pytest.mark.parametrize("B", [
+    [[0.0, 0.0], [0.0, -1.0], [1.0, 1.0]],   # the shipped walker's hip motors (pivot free)
+    [[0.3], [1.0], [-0.5]],                  # one motor: two free directions
+    [[1.0, 0.2, 0.0], [0.0, 1.0, 0.0], [0.5, 0.0, 1.0]],  # a motor for every direction
+])
+def test_inertia_weighted_allocation_is_the_formula_with_the_inverse_mass_matrix(B, rng):
+    """B u = B (B^T M^-1 B)^-1 B^T M^-1 tau, written here with Pinocchio's M^-1 and numpy's
+    solve, against the allocation's null-space form (CRBA, the unactuated directions)."""
+    robot = load_robot("three_link_biped")
+    B = np.array(B)
+    alloc = Allocation(B, "inertia_weighted", robot.model)
+    data = robot.model.createData()
+    for _ in range(20):
+        q, tau = rng.uniform(-1.0, 1.0, 3), rng.normal(0.0, 50.0, 3)
+        Mi = pin.computeMinverse(robot.model, data, q)
+        Mi = np.triu(Mi) + np.triu(Mi, 1).T
+        u = np.linalg.solve(B.T @ Mi @ B, B.T @ Mi @ tau)
+        np.testing.assert_allclose(alloc.joint_torque(q, tau), B @ u, rtol=0, atol=1e-11)
 
 
 def test_a_fall_stops_the_seed_as_diverged():

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from functools import partial
+from functools import cache, partial
 
 import numpy as np
 import pinocchio as pin
@@ -82,3 +82,22 @@ _EUCLIDEAN_JOINTS = {
     "JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned",
     "JointModelRUBX", "JointModelRUBY", "JointModelRUBZ",
 }
+
+
+def mass_matrix(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
+    """The joint-space inertia matrix M(q), whole and symmetric, by Pinocchio's CRBA (a new
+    array: a later call cannot change it)."""
+    M = pin.crba(model, data, q)
+    if not _crba_fills_whole():  # Pinocchio 3 fills the upper triangle only
+        return np.triu(M) + np.triu(M, 1).T
+    return M if M.flags.owndata else M.copy()
+
+
+@cache
+def _crba_fills_whole() -> bool:
+    """Whether this Pinocchio's CRBA fills the whole matrix (Pinocchio 4) or only its upper
+    triangle (Pinocchio 3), tried once on its sample manipulator."""
+    model = pin.buildSampleModelManipulator()
+    M = pin.crba(model, model.createData(),
+                 pin.integrate(model, pin.neutral(model), np.full(model.nv, 0.3)))
+    return bool(np.array_equal(M, M.T))
