@@ -176,16 +176,7 @@ def robustness(raw: dict[str, Any], source: Path | None, learners: list[str],
         ``{"goal": GOAL, "tail": TAIL, "seeds", "cycles", "scenarios": {name: {...}},
         "scores": {learner: {scenario: score or None}}, "points": [...]}``.
     """
-    learner_overrides = learner_overrides or {}
-    common = ["walking.poincare=false"] if raw.get("walking") else []
-    todo: dict[tuple, list[str]] = {}  # (learner, scenario or "nominal", value) -> overrides
-    for learner in learners:
-        for sc in scenarios:
-            for value in sc.values if sc.not_applicable is None else ():
-                key = _point_key(learner, sc, value)
-                todo.setdefault(key, [f"learning.update={learner}", *common,
-                                      *learner_overrides.get(learner, []),
-                                      *overrides_for(raw, sc, value)])
+    todo = points_to_run(raw, learners, scenarios, learner_overrides)
     done = _run_points(raw, source, todo, seeds, cycles, log, jobs)
     points, scores = [], {}
     for learner in learners:
@@ -196,7 +187,7 @@ def robustness(raw: dict[str, Any], source: Path | None, learners: list[str],
                 continue
             hits = []
             for value in sc.values:
-                per_seed = done[_point_key(learner, sc, value)]
+                per_seed = done[_point_key(raw, learner, sc, value)]
                 ok = all(p["reached"] for p in per_seed)
                 hits.append(ok)
                 points.append({"learner": learner, "scenario": sc.name, "value": value,
@@ -209,8 +200,41 @@ def robustness(raw: dict[str, Any], source: Path | None, learners: list[str],
             "scores": scores, "points": points}
 
 
-def _point_key(learner: str, sc: Scenario, value: float) -> tuple:
-    return (learner, "nominal", 0.0) if value == sc.nominal else (learner, sc.name, value)
+def points_to_run(raw: dict[str, Any], learners: list[str], scenarios: list[Scenario],
+                  learner_overrides: dict[str, list[str]] | None = None
+                  ) -> dict[tuple, list[str]]:
+    """Every point to learn at, ``(learner, scenario or "nominal", value)`` -> its ``--set``
+    overrides. The scenarios that the raw config leaves at their nominal value share one
+    undisturbed point per learner (the config as it is); a scenario the config itself sets
+    (e.g. a ``disturbances:`` block with torque noise) has its own nominal point, where only
+    that disturbance is off."""
+    learner_overrides = learner_overrides or {}
+    common = ["walking.poincare=false"] if raw.get("walking") else []
+    todo: dict[tuple, list[str]] = {}
+    for learner in learners:
+        for sc in scenarios:
+            for value in sc.values if sc.not_applicable is None else ():
+                todo.setdefault(_point_key(raw, learner, sc, value),
+                                [f"learning.update={learner}", *common,
+                                 *learner_overrides.get(learner, []),
+                                 *overrides_for(raw, sc, value)])
+    return todo
+
+
+def _point_key(raw: dict[str, Any], learner: str, sc: Scenario, value: float) -> tuple:
+    shared = value == sc.nominal and _config_value(raw, sc) == sc.nominal
+    return (learner, "nominal", 0.0) if shared else (learner, sc.name, value)
+
+
+def _config_value(raw: dict[str, Any], sc: Scenario) -> float:
+    """The raw config's own value of a scenario (its nominal value where the config is silent;
+    the period scenario scales the config's period: nominal)."""
+    node: Any = raw
+    for part in sc.path.split(".") if sc.path != "period" else ():
+        node = node.get(part) if isinstance(node, dict) else None
+        if node is None:
+            break
+    return sc.nominal if node is None or isinstance(node, dict) else float(node)
 
 
 def _run_points(raw, source, todo: dict[tuple, list[str]], seeds, cycles, log, jobs: int
@@ -359,5 +383,5 @@ def add_command(sub, make_sub) -> None:
 
 
 __all__ = ["GOAL", "LEARNERS", "SCENARIOS", "Scenario", "WALKER_SCENARIOS", "add_command",
-           "format_scores", "overrides_for", "reached", "robustness", "run_point", "scenarios_for",
-           "write"]
+           "format_scores", "overrides_for", "points_to_run", "reached", "robustness",
+           "run_point", "scenarios_for", "write"]

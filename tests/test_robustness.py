@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from feltool.robustness import SCENARIOS, overrides_for, reached
+from feltool.robustness import SCENARIOS, overrides_for, points_to_run, reached
 
 from .conftest import feltool
 
@@ -21,6 +21,21 @@ def test_period_is_rounded_to_whole_samples():
     raw = {"period_s": 1.0, "sim": {"rate_hz": 100}}
     assert overrides_for(raw, SCENARIOS["period"], 1.234) == ["period_s=1.23"]
     assert overrides_for(raw, SCENARIOS["delay"], 3.0) == ["disturbances.input_delay_steps=3"]
+
+
+def test_undisturbed_point_is_shared_only_by_scenarios_the_config_leaves_nominal():
+    scenarios = [SCENARIOS["noise_q"], SCENARIOS["torque_noise"], SCENARIOS["mass"]]
+    disturbed = {("gradient", sc.name, v) for sc in scenarios for v in sc.values[1:]}
+    plain = points_to_run({"period_s": 1.0}, ["gradient"], scenarios)
+    assert set(plain) == {("gradient", "nominal", 0.0)} | disturbed  # one undisturbed run
+    # a config that brings its own torque noise: its undisturbed point turns that noise off,
+    # the other scenarios' undisturbed point keeps it (the config as it is)
+    noisy = {"period_s": 1.0, "disturbances": {"torque_noise": 0.3}}
+    todo = points_to_run(noisy, ["gradient"], scenarios)
+    assert "disturbances.torque_noise=0.0" in todo[("gradient", "torque_noise", 0.0)]
+    assert not any("torque_noise" in o for o in todo[("gradient", "nominal", 0.0)])
+    assert set(todo) == {("gradient", "nominal", 0.0), ("gradient", "torque_noise", 0.0)} \
+        | disturbed
 
 
 def test_robustness_command_scores_learners(tmp_path):
