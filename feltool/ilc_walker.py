@@ -130,13 +130,9 @@ class OrbitStep:
             Rq, Rv, Ra = self.R
             p, pv, pa = self.P[sample], self.Pv[sample], self.Pa[sample]
             rp, rpv, rpa = Rq[sample], Rv[sample], Ra[sample]
-        qd, vd, ad = W.complete(*W.labelled(p, pv, pa, label))
-        qr, vr, ar = (W.complete(*W.labelled(rp, rpv, rpa, label)) if L.reference
-                      else (qd, vd, ad))
-        r, rd = L.law.references(qr[None], vr[None])
-        u_fb, _, u_err = L.law.terms(q, v, r[0], rd[0], L.error_rows)
-        A = W.allocation_matrix(q)
-        u = A @ (L.known.inverse(qd, vd, ad) + u_fb) + du
+        (_, _, _, ar), _, (_, _, u_err), A, u = L.command(q, v, (p, pv, pa), (rp, rpv, rpa),
+                                                          label)
+        u = u + du
         if W.checks.torques == "saturate":
             u = np.clip(u, -W.checks.effort, W.checks.effort)
         tau = W.B @ u

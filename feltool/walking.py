@@ -358,18 +358,10 @@ class PhysicalLoop:
                 else:
                     p, pv, pa, rp, rpv, rpa = P[jj], Pv[jj], Pa[jj], Rq[jj], Rv[jj], Ra[jj]
                 index[k] = jj
-                qd, vd, ad = W.complete(*W.labelled(p, pv, pa, label))
+                (qd, vd, ad, ar), Ref[k], (U[k], Urows[k], Uerr[k]), Alloc[k], u = \
+                    self.command(qm, vm, (p, pv, pa), (rp, rpv, rpa), label)
                 Q[k], V[k], Qd[k], Vd[k], Ad[k] = qm, vm, qd, vd, ad
                 m += 1
-                if self.reference:
-                    qr, vr, ar = W.complete(*W.labelled(rp, rpv, rpa, label))
-                else:
-                    qr, vr, ar = qd, vd, ad
-                r, rd = self.law.references(qr[None], vr[None])
-                Ref[k] = r[0]
-                U[k], Urows[k], Uerr[k] = self.law.terms(qm, vm, r[0], rd[0], self.error_rows)
-                Alloc[k] = W.allocation_matrix(qm)
-                u = Alloc[k] @ (self.known.inverse(qd, vd, ad) + U[k])
                 if self.motor_feedforward is not None:
                     u = u + self.motor_feedforward[jj]
                 over = np.abs(u) > W.checks.effort
@@ -429,6 +421,23 @@ class PhysicalLoop:
         return WalkLog(Q[sl], V[sl], U[sl], q, v, Qd[sl], Vd[sl], Ad[sl], labels[sl],
                        impacts, fall, Urows[sl], Uerr[sl], steps, index[sl], Tau[sl], Force[sl],
                        hits, kind, Alloc[sl], Ref[sl], Inert[sl])
+
+    def command(self, q: np.ndarray, v: np.ndarray, forward: tuple, reference: tuple,
+                label: int) -> tuple:
+        """The controller of one control step at the (measured) state ``q, v``: the desired
+        joint state from the RMPs' ``forward`` values ``(p, pv, pa)`` (and the reference
+        rows' from ``reference``) at stance ``label``, the feedback laws' terms, the
+        allocation A and the motors' command :math:`u = A(u_{ff} + u_{fb})` [N m], before the
+        effort limits. Returns ``((qd, vd, ad, ar), r, (u_fb, u_rows, u_err), A, u)``, ``ar``
+        the reference's acceleration."""
+        W = self.walker
+        qd, vd, ad = W.complete(*W.labelled(*forward, label))
+        qr, vr, ar = W.complete(*W.labelled(*reference, label)) if self.reference else \
+            (qd, vd, ad)
+        r, rd = self.law.references(qr[None], vr[None])
+        terms = self.law.terms(q, v, r[0], rd[0], self.error_rows)
+        A = W.allocation_matrix(q)
+        return (qd, vd, ad, ar), r[0], terms, A, A @ (self.known.inverse(qd, vd, ad) + terms[0])
 
     def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int, ref=None,
                     phase_acc: float = 0.0):
