@@ -193,8 +193,21 @@ class SeedCheckpoints:
         self.checkpointer, self.record = checkpointer, record
         self.run_cycle, self.cycles = run_cycle, cycles
 
-    def load(self) -> dict[str, Any] | None:
-        return self.checkpointer.load()
+    def restore(self) -> tuple[int, tuple] | None:
+        """The last checkpoint (what :meth:`save` wrote) put back: the record's rows and the
+        cycle runner's own state; returns its cycle and the seed's ``(theta, q, v,
+        theta_m)`` (:class:`~feltool.seed.SeedState`'s fields), or None without one."""
+        saved = self.checkpointer.load()
+        if saved is None:
+            return None
+        self.record.restore(saved)
+        if "rmp_x" in saved:
+            for key, x, S in zip(saved["rmp_keys"], saved["rmp_x"], saved["rmp_S"]):
+                self.run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
+        if hasattr(self.run_cycle, "restore_state"):  # ILC sequence, disturbance state, motion
+            self.run_cycle.restore_state(saved)
+        return saved["cycle"], (saved["theta"], saved["q"], saved["v"],
+                                saved.get("model_theta"))
 
     def save(self, cycle: int, state: SeedState) -> None:
         arrays, meta = self.record.save()

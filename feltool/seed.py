@@ -159,16 +159,10 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     saver = SeedCheckpoints(checkpoint, record, run_cycle, cycles) if checkpoint else None
     observers += [saver] if saver is not None else []
     start = 1
-    saved = saver.load() if saver is not None else None
-    if saved is not None:
-        start = saved["cycle"] + 1
-        state = SeedState(saved["theta"], saved["q"], saved["v"], saved.get("model_theta"))
-        record.restore(saved)
-        if "rmp_x" in saved:
-            for key, x, S in zip(saved["rmp_keys"], saved["rmp_x"], saved["rmp_S"]):
-                run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
-        if hasattr(run_cycle, "restore_state"):  # ILC sequence, disturbance state, motion
-            run_cycle.restore_state(saved)
+    restored = saver.restore() if saver is not None else None
+    if restored is not None:
+        last, fields = restored
+        start, state = last + 1, SeedState(*fields)
     record.started = time.perf_counter()
     state.plant = _plant_at_start(exp, start)
     reason, out = None, None
