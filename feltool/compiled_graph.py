@@ -144,6 +144,32 @@ def symbolic_frames(law, model) -> dict:
     return out
 
 
+def frames_at(frames: dict, q) -> dict:
+    """:func:`symbolic_frames` traced once at ``q``: the same ``{row: q -> (y, j_y)}``, each
+    returning its one evaluation (the feedback and the error metric share it)."""
+    values = {row: kin(q) for row, kin in frames.items()}
+    return {row: (lambda _q, value=value: value) for row, value in values.items()}
+
+
+def symbolic_reference(law, qd, vd, targets):
+    r"""The references :math:`r = C_{track} q_d + r_{held}`, :math:`\dot r = C_{track}\dot q_d`
+    of desired joint states (:meth:`feltool.control.FeedbackLaw.reference`), the stabilized
+    rows' targets an input of the graph."""
+    track, stab = ca.DM(law.tracking.astype(float)), ca.DM(law.stabilizing.astype(float))
+    C = ca.DM(law.C)
+    return track * ca.mtimes(C, qd) + stab * targets, track * ca.mtimes(C, vd)
+
+
+def controlled_error(law, r, q, frames: dict | None = None):
+    r"""The largest :math:`|\mathrm{wrap}(r - y)|` over the tracked and stabilized rows [rad]
+    (0 without any), :math:`y` the controlled quantities: :math:`C q` and the frame angles."""
+    y = ca.mtimes(ca.DM(law.C), q)
+    for row, kin in (frames or {}).items():
+        y[row] = kin(q)[0]
+    controlled = np.flatnonzero(law.tracking | law.stabilizing).tolist()
+    return ca.mmax(ca.fabs(wrap(CASADI, r - y)[controlled])) if controlled else type(q)(0)
+
+
 def _symbolic_limits(limits):
     if limits is None:
         return None
@@ -165,7 +191,7 @@ def step_function(exp, plant, lay: Layout | None = None) -> ca.Function:
     x, uff, r, rd = (ca.SX.sym(s, nv if s != "x" else 2 * nv) for s in ("x", "uff", "r", "rd"))
     kp, kd = ca.SX.sym("kp", nv), ca.SX.sym("kd", nv)
     q, v = x[:nv], x[nv:]
-    frames = symbolic_frames(law, model)
+    frames = frames_at(symbolic_frames(law, model), q)
     sym_law = SimpleNamespace(C=ca.DM(law.C), kp=kp, kd=kd)
     u_fb, u_rows, u_err = feedback(CASADI, sym_law, q, v, r, rd, loop.error_rows, frames)
     per_step_model = exp.model_learner is not None and exp.model_learner.step_mode == "per_step"
@@ -183,11 +209,7 @@ def step_function(exp, plant, lay: Layout | None = None) -> ca.Function:
     limits = _symbolic_limits(loop.limits)
     q1, v1 = advance(CASADI, symbolic_forward(plant), q, v, tau, loop.dt / loop.substeps,
                      loop.substeps, loop.integrator == "semi_implicit_euler", limits)
-    y = ca.mtimes(ca.DM(law.C), q)
-    for row, kin in frames.items():
-        y[row] = kin(q)[0]
-    controlled = np.flatnonzero(law.tracking | law.stabilizing).tolist()
-    err = ca.mmax(ca.fabs(wrap(CASADI, r - y)[controlled])) if controlled else ca.SX(0)
+    err = controlled_error(law, r, q, frames)
     hit_q, hit_t = ca.SX.zeros(nv), ca.SX.zeros(nv)
     lim = loop.limits
     if lim is not None:
@@ -462,10 +484,7 @@ def per_step_cycle_function(exp, plant, full: bool = False,
         vd.append(w * yi[1])
         ad.append(w * w * (ca.mtimes(a_row, yi) + ca.dot(row[i], th)) + wd * yi[1])
     qd, vd, ad = ca.vertcat(*qd), ca.vertcat(*vd), ca.vertcat(*ad)
-    track, stab = ca.DM(law.tracking.astype(float)), ca.DM(law.stabilizing.astype(float))
-    C = ca.DM(law.C)
-    r = track * ca.mtimes(C, qd) + stab * targets
-    rd = track * ca.mtimes(C, vd)
+    r, rd = symbolic_reference(law, qd, vd, targets)
     tau, Dcols, _ = feedforward_function(exp, lay0)(qd, vd, ad, ca.SX(0, 1))
     x1, u_fb, u_rows, u_err, err, hits = step_function(exp, plant, lay0)(x, tau, r, rd, kp, kd)
     L, e = len(lay0.blocks), u_err * weight

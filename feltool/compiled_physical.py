@@ -33,7 +33,12 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from feltool.compiled_graph import desired_from_data, layout
+from feltool.compiled_graph import (
+    controlled_error,
+    desired_from_data,
+    layout,
+    symbolic_reference,
+)
 from feltool.cycle import feedback, fel_update, wrap
 from feltool.dynamics.casadi_backend import (
     symbolic_center_of_mass,
@@ -378,12 +383,8 @@ class _Control:
             qr, vr, ar = kin.complete(*kin.labelled(rp, rpv, rpa, label))
         else:
             qr, vr, ar = qd, vd, ad
-        track = ca.DM(law.tracking.astype(float))
-        stab = ca.DM(law.stabilizing.astype(float))
-        C = ca.DM(law.C)
-        r = track * ca.mtimes(C, qr) + stab * targets
-        rd = track * ca.mtimes(C, vr)
-        sym_law = type("Law", (), {"C": C, "kp": kp, "kd": kd})
+        r, rd = symbolic_reference(law, qr, vr, targets)
+        sym_law = type("Law", (), {"C": ca.DM(law.C), "kp": kp, "kd": kd})
         u_fb, u_rows, u_err = feedback(CASADI, sym_law, q, v, r, rd, loop.error_rows)
         Mq = kin.M(q)
         A = kin.allocation(q, Mq)
@@ -400,10 +401,7 @@ class _Control:
         xc_acc = kin.com_x(q, v, a_now)[2]
         phase_acc_next = ca.if_else(x_rate > 1e-9, (xc_acc - xa_f * rate**2) / x_rate, 0.0)
         # the metric's largest error: forward (not reference) desired against the system
-        r_fwd = track * ca.mtimes(C, qd) + stab * targets
-        controlled = np.flatnonzero(law.tracking | law.stabilizing).tolist()
-        err = ca.mmax(ca.fabs(wrap(CASADI, r_fwd - ca.mtimes(C, q))[controlled])) if controlled \
-            else ca.MX(0)
+        err = controlled_error(law, symbolic_reference(law, qd, vd, targets)[0], q)
         return ca.Function("control", [q, v, phase_acc, n_imp, consts, kp, kd, targets],
                            [tau, u, over, qd, vd, ad, r, u_fb, u_rows, u_err, ca.vec(A), inert,
                             phase_acc_next, jj, label, err])

@@ -30,14 +30,17 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.compiled_graph import (
+    controlled_error,
     cycle_outputs,
     cycle_stats,
     desired_from_data,
+    frames_at,
     layout,
     symbolic_forward,
     symbolic_frames,
+    symbolic_reference,
 )
-from feltool.cycle import advance, feedback, fel_sums, fel_update, wrap
+from feltool.cycle import advance, feedback, fel_sums, fel_update
 from feltool.dynamics.casadi_backend import (
     symbolic_frame_kinematics,
     symbolic_rnea,
@@ -130,12 +133,9 @@ def walker_step_function(exp, plant, lay) -> ca.Function:
             qd, vd = qd + gain * e * rr * col, vd + gain * (ev * rr + e * rrd) * col
     else:
         qd, vd, ad = p, pv, pa
-    track, stab = ca.DM(law.tracking.astype(float)), ca.DM(law.stabilizing.astype(float))
-    C = ca.DM(law.C)
-    r = track * ca.mtimes(C, qd) + stab * sym["targets"]
-    rd = track * ca.mtimes(C, vd)
-    frames = symbolic_frames(law, model)
-    sym_law = SimpleNamespace(C=C, kp=sym["kp"], kd=sym["kd"])
+    r, rd = symbolic_reference(law, qd, vd, sym["targets"])
+    frames = frames_at(symbolic_frames(law, model), q)
+    sym_law = SimpleNamespace(C=ca.DM(law.C), kp=sym["kp"], kd=sym["kd"])
     u_fb, u_rows, u_err = feedback(CASADI, sym_law, q, v, r, rd, H.error_rows, frames)
     known = getattr(H.known, "model", model)
     qs, vs, as_ = (ca.SX.sym(n, nv) for n in ("qs", "vs", "as"))
@@ -200,11 +200,7 @@ def walker_step_function(exp, plant, lay) -> ca.Function:
             else:
                 cols.append(D[:, i])
     Dcols = ca.horzcat(*cols) if cols else ca.SX(nv, 0)
-    y = ca.mtimes(C, q)
-    for row, kin in frames.items():
-        y[row] = kin(q)[0]
-    controlled = np.flatnonzero(law.tracking | law.stabilizing).tolist()
-    err = ca.mmax(ca.fabs(wrap(CASADI, r - y)[controlled])) if controlled else ca.SX(0)
+    err = controlled_error(law, r, q, frames)
     # a cycle that fell keeps its state for the steps left
     live = 1 - fallen
     nxt = [ca.if_else(live, a, b) for a, b in ((ca.vertcat(q2, v2), x), (s2, s), (j2, j),
