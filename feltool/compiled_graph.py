@@ -333,9 +333,7 @@ def cycle_function(exp, plant, full: bool = False, name: str = "cycle") -> ca.Fu
     params = ca.MX.sym("params", lay.n_params)
     PL, Pm, B = lay.n_learned, lay.n_model, lay.model_basis
     theta, theta_m, x0 = state[:PL], state[PL:PL + Pm], state[PL + Pm:]
-    kp, kd, targets = params[:nv], params[nv:2 * nv], params[2 * nv:3 * nv]
-    rates, damping = params[3 * nv:3 * nv + PL], params[3 * nv + PL]
-    rate_m, damping_m = (params[3 * nv + PL + 1], params[3 * nv + PL + 2]) if Pm else (0, 0)
+    kp, kd, targets, rates, damping, rate_m, damping_m = split_params(lay, params)
     model = exp.model_learner
 
     # 1. the desired trajectory
@@ -385,17 +383,9 @@ def cycle_function(exp, plant, full: bool = False, name: str = "cycle") -> ca.Fu
     finite = (ca.sum1(ca.sum2(ca.fabs(X))) + ca.sum1(ca.fabs(x_end))) < np.inf
     theta_next = theta
     if L:
-        E = Uerr * ca.repmat(weight, nv, 1)
-        deriv = [[Dall[:, [c * L + l + 3 * L * k for k in range(n)]] for c in range(3)]
-                 for l in range(L)]
-        rows = None
-        if learner.update == "gauss_newton":
-            any_err = ca.sum2(ca.fabs(Uerr) * (ca.repmat(mask, nv, 1) if lay.masked else 1)) > 0
-            rows = ca.fmax(any_err, ca.DM((learner.error_mask > 0).astype(float)))
-            rows = ca.repmat(rows, 1, n) * ca.repmat(weight, nv, 1)
-        grad, hess = fel_sums(CASADI, sens, deriv, E, rows)
-        step = fel_update(CASADI, theta, grad, hess, rates, learner.is_goal, learner.update,
-                          damping)
+        errors = Uerr * ca.repmat(mask, nv, 1) if lay.masked else Uerr
+        step = fel_step(learner, lay, theta, sens, Dall, Uerr * ca.repmat(weight, nv, 1), errors,
+                        rates, damping, weight)
         theta_next = ca.if_else(finite, step, theta)
 
     # 5. metrics
@@ -517,8 +507,7 @@ def per_step_cycle_function(exp, plant, full: bool = False,
     th0, y0 = state[:P], state[P:P + 2 * nv]
     S0, x0 = state[P + 2 * nv:3 * P + 2 * nv], state[3 * P + 2 * nv:]
     D = ca.reshape(data, pl["per_step"], n)
-    kps, kds, tgs = (ca.repmat(params[o * nv:(o + 1) * nv], 1, n) for o in range(3))
-    rts = ca.repmat(params[3 * nv:3 * nv + lay0.n_learned], 1, n)
+    kps, kds, tgs, rts = (ca.repmat(x, 1, n) for x in split_params(lay0, params)[:4])
     run = step_all.mapaccum("sim_per_step", n, [0, 1, 2, 3], [0, 1, 2, 3])
     TH, Y, SS, X_after, U, Urows, Uerr, err, hits, Qd = run(th0, y0, S0, x0, D, kps, kds, tgs,
                                                            rts)
@@ -559,6 +548,36 @@ def parameters(exp) -> np.ndarray:
                            extra])
 
 
+def split_params(lay: Layout, params) -> tuple:
+    """The graph's ``params`` input (:func:`parameters`) taken apart: ``(kp, kd, targets,
+    rates, damping, rate_m, damping_m)`` (the last two 0 without ``learning.model``)."""
+    nv, PL = lay.nv, lay.n_learned
+    o = 3 * nv + PL
+    model = (params[o + 1], params[o + 2]) if lay.n_model else (0, 0)
+    return (params[:nv], params[nv:2 * nv], params[2 * nv:3 * nv], params[3 * nv:o],
+            params[o], *model)
+
+
+def fel_step(learner, lay: Layout, theta, sens, Dall, E, errors, rates, damping, weight=None):
+    """The learned parameters after the cycle's update (eq. 3.6) in the graph: the sums of
+    :func:`feltool.cycle.fel_sums` from the learned joints' derivative columns ``Dall``
+    (``nv x 3 L n``, :func:`feedforward_function`'s per step) and the error torques ``E``
+    (``nv x n``, weighted as the update wants them); for Gauss-Newton the error rows are those
+    with a nonzero entry in ``errors`` (``nv x n``) or in the learner's error mask, each step
+    weighted by ``weight`` (``1 x n``; None: 1), as :meth:`feltool.fel.FeedbackErrorLearner.
+    sums` does."""
+    L, n = len(lay.blocks), lay.n
+    deriv = [[Dall[:, [c * L + l + 3 * L * k for k in range(n)]] for c in range(3)]
+             for l in range(L)]
+    rows = None
+    if learner.update == "gauss_newton":
+        rows = ca.fmax(ca.sum2(ca.fabs(errors)) > 0,
+                       ca.DM((learner.error_mask > 0).astype(float)))
+        rows = ca.repmat(rows, 1, n) * (1 if weight is None else ca.repmat(weight, lay.nv, 1))
+    grad, hess = fel_sums(CASADI, sens, deriv, E, rows)
+    return fel_update(CASADI, theta, grad, hess, rates, learner.is_goal, learner.update, damping)
+
+
 __all__ = ["Layout", "SCALARS", "cycle_function", "feedforward_function", "layout",
-           "many_function", "parameters", "step_function", "symbolic_forward",
+           "many_function", "parameters", "split_params", "step_function", "symbolic_forward",
            "symbolic_frames"]

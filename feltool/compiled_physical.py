@@ -37,6 +37,7 @@ from feltool.compiled_graph import (
     controlled_error,
     desired_from_data,
     layout,
+    split_params,
     symbolic_reference,
 )
 from feltool.cycle import feedback, fel_update, wrap
@@ -600,8 +601,7 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     data = ca.MX.sym("data", lay.n_data + 3 * n * len(refs))
     params = ca.MX.sym("params", lay.n_params)
     theta, x0 = state[:PL], state[PL:]
-    kp, kd, targets = params[:nv], params[nv:2 * nv], params[2 * nv:3 * nv]
-    rates, damping = params[3 * nv:3 * nv + PL], params[3 * nv + PL]
+    kp, kd, targets, rates, damping = split_params(lay, params)[:5]
     sens, (P, Pv, Pa), _, pos = desired_from_data(lay, theta, data)
     R = [P, Pv, Pa]
     for j, i in enumerate(refs):  # a referenced joint's feedback and phase follow samples

@@ -34,13 +34,15 @@ from feltool.compiled_graph import (
     cycle_outputs,
     cycle_stats,
     desired_from_data,
+    fel_step,
     frames_at,
     layout,
+    split_params,
     symbolic_forward,
     symbolic_frames,
     symbolic_reference,
 )
-from feltool.cycle import advance, feedback, fel_sums, fel_update
+from feltool.cycle import advance, feedback
 from feltool.dynamics.casadi_backend import (
     symbolic_frame_kinematics,
     symbolic_rnea,
@@ -226,8 +228,7 @@ def walker_cycle_function(exp, plant, full: bool = False,
     data = ca.MX.sym("data", lay.n_data)
     params = ca.MX.sym("params", lay.n_params)
     theta, x0 = state[:PL], state[PL:]
-    kp, kd, targets = params[:nv], params[nv:2 * nv], params[2 * nv:3 * nv]
-    rates, damping = params[3 * nv:3 * nv + PL], params[3 * nv + PL]
+    kp, kd, targets, rates, damping = split_params(lay, params)[:5]
     sens, (P, Pv, Pa), _, _ = desired_from_data(lay, theta, data)
     step = walker_step_function(exp, plant, lay).mapaccum("walk", n, [0, 1, 2, 3, 4],
                                                          [0, 1, 2, 3, 4])
@@ -254,16 +255,7 @@ def walker_cycle_function(exp, plant, full: bool = False,
                                    ca.DM.zeros(1, n - window))  # the last wraps to row 0
             keep = keep * (hit < 0.5)
         E = Uerr * ca.repmat(keep, nv, 1)
-        deriv = [[Dall[:, [c * L + l + 3 * L * k for k in range(n)]] for c in range(3)]
-                 for l in range(L)]
-        rows = None
-        if learner.update == "gauss_newton":
-            any_err = ca.sum2(ca.fabs(E)) > 0
-            rows = ca.fmax(any_err, ca.DM((learner.error_mask > 0).astype(float)))
-            rows = ca.repmat(rows, 1, n)
-        grad, hess = fel_sums(CASADI, sens, deriv, E, rows)
-        step_ = fel_update(CASADI, theta, grad, hess, rates, learner.is_goal, learner.update,
-                           damping)
+        step_ = fel_step(learner, lay, theta, sens, Dall, E, E, rates, damping)
         theta_next = ca.if_else(fell, theta, step_)
     stats = cycle_stats(law, live, X, Qd, U, Urows, Uerr, err, ca.MX.zeros(2 * nv, n),
                         finite, live)

@@ -143,6 +143,18 @@ def test_the_compiled_engine_runs_the_features_no_shipped_config_uses(overrides)
     _rows_equal(ref, comp)
 
 
+def test_the_pinned_walkers_gauss_newton_update_is_the_python_engines():
+    """The rigid-impact walker with Levenberg-Marquardt steps (impact window, allocation,
+    foot placement): the compiled engine's rows equal the Python engine's."""
+    cfg = CONFIGS / "biped_torso_rigid.yaml"
+    over = ["learning.update=gauss_newton", "learning.rates.weights=0.5", "walking.poincare=false"]
+    ref = run_seed(load_experiment(cfg, ["backend=pinocchio", *over]), 0, 4)
+    comp = run_seed(load_experiment(cfg, ["backend=compiled", *over]), 0, 4)
+    assert not ref.summary["diverged"]
+    assert ref.rows[-1]["fb_abs_mean_error"] != ref.rows[0]["fb_abs_mean_error"]
+    _rows_equal(ref, comp)
+
+
 @pytest.mark.parametrize("overrides", [
     ["learning.model.update=gauss_newton", "learning.model.rate=0.5"],
     ["learning.model.features=phase_basis", "learning.model.basis=6",
