@@ -259,7 +259,7 @@ def _walker_cost_of(robot: str, config: str, best) -> dict:
     updates; norm-optimal ILC's lifted model and its factor are built once (timed apart)."""
     from feltool.ilc import NormOptimalILC, PTypeILC
     from feltool.ilc_walker import norm_optimal_factor, phase_error
-    from feltool.seed import _motor_step, error_torques
+    from feltool.python_engine import error_torques, motor_step
 
     exp = load_experiment(CONFIGS / f"{config}.yaml", overrides(config, "gauss_newton"))
     grad = load_experiment(CONFIGS / f"{config}.yaml", overrides(config, "gradient"))
@@ -279,7 +279,7 @@ def _walker_cost_of(robot: str, config: str, best) -> dict:
         _, *d = e.hybrid.jacobian_derivatives(log)
         J = e.learner.jacobian(e.dynamics, theta, log.Qd, log.Vd, log.Ad, d,
                                samples=log.phase_index)
-        _motor_step(e, theta, log.allocation, J, error_torques(e, log))
+        motor_step(e, theta, log.allocation, J, error_torques(e, log))
 
     return {"robot": robot, "samples": exp.primitives.n_steps,
             "simulation_ms": best(lambda: exp.hybrid.run_cycle(exp.dynamics, q, v, P, Pv, Pa)),

@@ -3,7 +3,7 @@
 :class:`CompiledEngine` builds the cycle graphs of an experiment (:mod:`feltool.compiled_graph`)
 for every world it meets (the plant, and the plant after each ``events:`` change of the world),
 compiles them into one library (:func:`feltool.compiled.compile_functions`) and runs cycles
-through them, returning the same :class:`~feltool.seed.CycleOutcome` as the Python engine.
+through them, returning the same :class:`~feltool.outcome.CycleOutcome` as the Python engine.
 
 A run whose cycles all repeat the nominal one (no motion events, a whole-sample period) is run
 :data:`~feltool.compiled.CYCLES_PER_CALL` cycles per call: the outcomes of the cycles that follow
@@ -30,12 +30,13 @@ from feltool.compiled_graph import (
 )
 from feltool.dynamics.casadi_backend import BufferedCall
 from feltool.events import changed_model
+from feltool.outcome import CycleOutcome
+from feltool.python_engine import hybrid_cycle, limit_cycle_states
 from feltool.simulate import CycleLog
 
 if TYPE_CHECKING:
     from feltool.experiment import Experiment
     from feltool.phase import PhaseSamples
-    from feltool.seed import CycleOutcome
 
 
 def _fingerprint(plant) -> bytes:
@@ -208,10 +209,9 @@ class CompiledEngine:
     def outcomes(self, theta: np.ndarray, world: int, state0: np.ndarray, data: np.ndarray,
                  states: np.ndarray, stats: np.ndarray,
                  n_steps: int | None = None) -> list[CycleOutcome]:
-        """The :class:`~feltool.seed.CycleOutcome` of each cycle in a row from ``state0``
+        """The :class:`~feltool.outcome.CycleOutcome` of each cycle in a row from ``state0``
         (parameters ``theta``) whose ends are the columns of ``states``, with ``stats``
         (``n_steps``: the steps of a cycle shorter than the graph's)."""
-        from feltool.seed import CycleOutcome
 
         nv, PL, Pm, exp = self.lay.nv, self.lay.n_learned, self.lay.n_model, self.exp
         models = None
@@ -328,11 +328,10 @@ def compiled_runner(exp: Experiment, motion=None, theta0: np.ndarray | None = No
 def _per_step_runner(exp: Experiment, engine: CompiledEngine, motion, theta0: np.ndarray):
     """Per-step learning: one cycle per call; the RMP states run on in ``run.rmp_states``
     (``{joint: (y, S)}``, saved in checkpoints as the Python engine's)."""
-    from feltool.seed import _limit_cycle_states
 
     prims, nv = exp.primitives, exp.primitives.nv
     P = prims.n_params
-    states = _limit_cycle_states(exp, theta0)
+    states = limit_cycle_states(exp, theta0)
 
     def run(theta, q, v, plant, theta_m=None) -> CycleOutcome:
         cycle = motion.next_cycle()
@@ -363,7 +362,6 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
     check, a fall, no touchdown) is the seed's last: the Python engine reruns it from the same
     state for its message and numbers."""
     from feltool.compiled_physical import CONTACT, PhysicalGraph
-    from feltool.seed import CycleOutcome, _hybrid_cycle
 
     nv, PL, spc = engine.lay.nv, engine.lay.n_learned, exp.hybrid.walker.steps_per_cycle
     fields = PhysicalGraph(exp).row_fields
@@ -375,7 +373,7 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         state0 = engine.state(theta, q, v)
         state, stats = engine.cycle(0, state0, data)
         if stats[k] != 0:  # stopped: the Python engine's outcome of this very cycle
-            return _hybrid_cycle(exp, theta, q, v, plant)
+            return hybrid_cycle(exp, theta, q, v, plant)
         m = int(round(stats[k + 1]))
         theta_next = theta.copy()
         theta_next[exp.learner.learned] = state[:PL]

@@ -234,7 +234,7 @@ def feedforward_function(exp, lay: Layout) -> ca.Function:
     regressor ``Y`` ``(nv, n_model)`` of the known model (:class:`feltool.model_fel.
     RegressorFeatures`). With ``learning.model.jacobian: learned`` the rows of ``D`` whose
     feedforward the correction drives are the corrected model's (:func:`feltool.seed.
-    _model_cycle`)."""
+    model_cycle`)."""
     model = exp.robot.model
     nv = model.nv
     q, v, a = (ca.SX.sym(s, nv) for s in ("q", "v", "a"))
@@ -407,7 +407,7 @@ def cycle_outputs(name: str, state, data, params, state_next, stats, traces,
 
 
 def cycle_stats(law, weight, X, Qd, U, Urows, Uerr, err, hits, finite, mask=None):
-    """The cycle's ``stats`` (:data:`SCALARS` and the rest, :func:`feltool.seed._outcome`):
+    """The cycle's ``stats`` (:data:`SCALARS` and the rest, :func:`feltool.python_engine.cycle_outcome`):
     phase-weighted means of |feedback| and of each controller's and the error's, the RMS of
     the forward minus the system trajectory, the largest error and speed, the limit hits
     (``mask``: the steps the cycle has, else all)."""
@@ -438,7 +438,7 @@ def per_step_layout(exp) -> dict:
 def per_step_cycle_function(exp, plant, full: bool = False,
                             name: str = "cycle_per_step") -> ca.Function:
     r"""A cycle with an update after every step (``learning.step: per_step``,
-    :func:`feltool.seed._per_step_cycle`): each RMP's state :math:`y = (q, q')` and its
+    :func:`feltool.python_engine.per_step_cycle`): each RMP's state :math:`y = (q, q')` and its
     sensitivity S run on through the exact transition of each step's phase,
     :math:`y \leftarrow F y + G\theta`, :math:`S \leftarrow F S + G`; the desired state is
     :math:`q_d = y_0`, :math:`\dot q_d = \omega y_1`, :math:`\ddot q_d = \omega^2 q'' +

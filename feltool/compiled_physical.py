@@ -645,7 +645,7 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
         step = fel_update(CASADI, theta, g_, hess, rates, learner.is_goal, learner.update,
                           damping)
         theta_next = ca.if_else(stop == 0, step, theta)
-    # metrics (feltool.seed._outcome and contact_metrics over the steps run)
+    # metrics (feltool.python_engine.cycle_outcome and contact_metrics over the steps run)
     vrow = ca.repmat(valid, nv, 1)
     mean = lambda M: ca.sum2(ca.fabs(M) * vrow) / m  # noqa: E731
     dq = rw["qd"] - rw["q"]

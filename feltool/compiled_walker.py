@@ -1,5 +1,5 @@
 r"""The thesis's pinned walker (and allocated motors) as a CasADi graph: the compiled
-:class:`feltool.hybrid.HybridLoop` and its learning cycle (:func:`feltool.seed._hybrid_cycle`).
+:class:`feltool.hybrid.HybridLoop` and its learning cycle (:func:`feltool.python_engine.hybrid_cycle`).
 
 Each control step, from the stance label :math:`s` and the number of impacts so far (both part
 of the state):
@@ -247,7 +247,7 @@ def walker_cycle_function(exp, plant, full: bool = False,
     if L:
         keep = live
         window = int(round(exp.config.learning.impact_window_s / exp.config.dt))
-        if window > 0:  # the samples after each impact leave the update (_impact_masked)
+        if window > 0:  # the samples after each impact leave the update (impact_masked)
             hit = ca.MX.zeros(1, n)
             for d in range(1, window + 1):  # impact after step k: rows k+1 .. k+window
                 hit = hit + ca.horzcat(ca.DM.zeros(1, d), imp[:, :n - d])

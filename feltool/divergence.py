@@ -20,7 +20,7 @@ from feltool.control import wrap
 
 if TYPE_CHECKING:
     from feltool.experiment import Experiment
-    from feltool.seed import CycleOutcome
+    from feltool.outcome import CycleOutcome
 
 
 def explain(exp: Experiment, out: CycleOutcome, cycle: int,

@@ -51,6 +51,7 @@ import pinocchio as pin
 from scipy import linalg, signal
 
 from feltool.fel import feedforward
+from feltool.python_engine import cycle_outcome, per_cycle
 
 if TYPE_CHECKING:
     from feltool.config import ExperimentConfig
@@ -263,7 +264,6 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
     ``extra_state()`` / ``restore_state(saved)`` and to the run's params as ``extra_params()``.
     """
     from feltool.disturbances import disturbed_loop
-    from feltool.seed import _outcome, _per_cycle
 
     cfg = exp.config
     update = cfg.learning.update
@@ -286,7 +286,7 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
             loop = dloop
             dloop.rng = np.random.default_rng([seed, 17, state["cycle"]])
         if update not in OWN_RUNNER:
-            return _per_cycle(exp, theta, q, v, loop)
+            return per_cycle(exp, theta, q, v, loop)
         u_ff = u0.copy()
         u_ff[:, inputs] += state["dU"]
         log = loop.run_cycle(q, v, R, Rd, u_ff)
@@ -300,7 +300,7 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
                                     exp.loop.substeps, exp.loop.integrator, log.q, log.v,
                                     R, Rd, Tau, inputs, outputs, exp.loop.error_rows)
                 state["dU"] = norm_opt.update(state["dU"], E, G)
-        return _outcome(exp, log, Qd, theta)
+        return cycle_outcome(exp, log, Qd, theta)
 
     names = [exp.joints[j] for j in inputs] if update in ILC_UPDATES else []
     return with_state(run, state, dloop, names)

@@ -14,7 +14,7 @@ control step k that uses sample :math:`i_k`:
 
 The error of sample i is the mean, over the control steps that used it, of the motor error
 :math:`e_k = A(q_k)\,\epsilon_k` (:math:`\epsilon_k` the learning signal of
-:func:`feltool.seed.error_torques`: the error feedback, plus :math:`M(\ddot q_r - \ddot q)` with
+:func:`feltool.python_engine.error_torques`: the error feedback, plus :math:`M(\ddot q_r - \ddot q)` with
 ``learning.error_estimate: inverse_dynamics`` -- the signal FEL's motor update uses); a sample
 no control step used has no error. Cycles of different lengths so update the same sequence.
 
@@ -47,6 +47,7 @@ import numpy as np
 from feltool.disturbances import disturbed_plant, walker_disturbance
 from feltool.dynamics.pinocchio import mass_matrix
 from feltool.ilc import ILC_UPDATES, OWN_RUNNER, NormOptimalILC, PTypeILC, with_state
+from feltool.python_engine import error_torques, hybrid_cycle, impact_masked
 from feltool.walking import StepStats
 
 if TYPE_CHECKING:
@@ -60,8 +61,6 @@ _FACTORS: dict[tuple, tuple] = {}  # its Cholesky factor, by (fingerprint, w_e, 
 def motor_error(exp: Experiment, log: WalkLog) -> np.ndarray:
     """The cycle's error in motor torques, :math:`e_k = A(q_k)\\,\\epsilon_k`, ``(n_k, m)``
     in [N m] (one row per control step)."""
-    from feltool.seed import error_torques
-
     return np.einsum("kmr,kr->km", log.allocation, error_torques(exp, log))
 
 
@@ -255,9 +254,7 @@ def _by_sample(G: np.ndarray, index: np.ndarray, n: int) -> np.ndarray:
 
 def _error_rows_kept(exp: Experiment, log: WalkLog) -> np.ndarray:
     """``(n_k,)`` False for the control steps ``learning.impact_window_s`` leaves out."""
-    from feltool.seed import _impact_masked
-
-    return _impact_masked(exp, log, np.ones((len(log.q), 1)))[:, 0] > 0
+    return impact_masked(exp, log, np.ones((len(log.q), 1)))[:, 0] > 0
 
 
 def _fingerprint(exp: Experiment) -> str:
@@ -301,7 +298,6 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int) -> Callable:
     the cycle count and the disturbances' state are exposed to checkpoints and params as in
     :func:`feltool.ilc.with_state`.
     """
-    from feltool.seed import _hybrid_cycle
 
     cfg = exp.config
     update = cfg.learning.update
@@ -325,9 +321,9 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int) -> Callable:
             if state["cycle"] == 1:  # the designed start, stood on the scaled walker's foot
                 q, v = on_ground(exp, plant, q, v)
         if update not in OWN_RUNNER:
-            return _hybrid_cycle(exp, theta, q, v, plant, loop)
+            return hybrid_cycle(exp, theta, q, v, plant, loop)
         loop.motor_feedforward = state["dU"] if update in ILC_UPDATES else None
-        out = _hybrid_cycle(exp, theta, q, v, plant, loop, learn=False)
+        out = hybrid_cycle(exp, theta, q, v, plant, loop, learn=False)
         log, _ = out.trace()
         if log.fall is None and update == "ilc_p":
             state["dU"] = p_type.update(state["dU"], phase_error(exp, log))

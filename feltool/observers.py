@@ -15,11 +15,11 @@ import numpy as np
 from feltool import checkpoint as checkpoints
 from feltool.checkpoint import Checkpointer, Interrupted
 from feltool.control import wrap
+from feltool.outcome import CycleOutcome, SeedState
 from feltool.simulate import CycleLog
 
 if TYPE_CHECKING:
     from feltool.experiment import Experiment
-    from feltool.seed import CycleOutcome, SeedState
 
 
 class SeedObserver(Protocol):
@@ -193,10 +193,10 @@ class SeedCheckpoints:
         self.checkpointer, self.record = checkpointer, record
         self.run_cycle, self.cycles = run_cycle, cycles
 
-    def restore(self) -> tuple[int, tuple] | None:
+    def restore(self) -> tuple[int, SeedState] | None:
         """The last checkpoint (what :meth:`save` wrote) put back: the record's rows and the
-        cycle runner's own state; returns its cycle and the seed's ``(theta, q, v,
-        theta_m)`` (:class:`~feltool.seed.SeedState`'s fields), or None without one."""
+        cycle runner's own state; returns its cycle and the seed's state, or None without
+        one."""
         saved = self.checkpointer.load()
         if saved is None:
             return None
@@ -206,8 +206,8 @@ class SeedCheckpoints:
                 self.run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
         if hasattr(self.run_cycle, "restore_state"):  # ILC sequence, disturbance state, motion
             self.run_cycle.restore_state(saved)
-        return saved["cycle"], (saved["theta"], saved["q"], saved["v"],
-                                saved.get("model_theta"))
+        return saved["cycle"], SeedState(saved["theta"], saved["q"], saved["v"],
+                                         saved.get("model_theta"))
 
     def save(self, cycle: int, state: SeedState) -> None:
         arrays, meta = self.record.save()

@@ -306,10 +306,10 @@ def test_impact_window_masks_the_learning_signal_and_is_only_for_walkers():
     from types import SimpleNamespace
 
     from feltool.config import ConfigError
-    from feltool.seed import _impact_masked
+    from feltool.python_engine import impact_masked
     exp = load_experiment(CONFIGS / "biped_torso_rigid.yaml")
     E = np.ones((200, 3))
-    out = _impact_masked(exp, SimpleNamespace(u_err=E, impacts=[(100, True, 0.3),
+    out = impact_masked(exp, SimpleNamespace(u_err=E, impacts=[(100, True, 0.3),
                                                                 (200, True, 0.6)]))
     zero = np.flatnonzero(~out.any(axis=1))
     assert list(zero) == list(range(0, 10)) + list(range(100, 110))

@@ -182,7 +182,7 @@ def test_walker_learner_sees_the_noisy_measurements_and_the_plant_the_true_state
     measurements (angles and rates with noise, the base from the stance leg's kinematics); the
     plant moves on its true state under the torques it received. ``walking.phase: touchdown``
     (one cycle), so that the references do not depend on the measured state."""
-    from feltool.seed import _motor_step, error_torques
+    from feltool.python_engine import error_torques, motor_step
 
     exp, run, out, log = _walker_cycle(["walking.phase=touchdown",
                                         "disturbances.measurement_noise.q=0.001",
@@ -230,7 +230,7 @@ def test_walker_learner_sees_the_noisy_measurements_and_the_plant_the_true_state
     _, *derivs = exp.hybrid.jacobian_derivatives(log)
     J = exp.learner.jacobian(exp.dynamics, theta, log.Qd, log.Vd, log.Ad, derivs,
                              samples=log.phase_index)
-    np.testing.assert_allclose(out.theta_next, _motor_step(exp, theta, log.allocation, J,
+    np.testing.assert_allclose(out.theta_next, motor_step(exp, theta, log.allocation, J,
                                                            error_torques(exp, log)), atol=1e-12)
     assert np.abs(out.theta_next - theta).max() > 1e-6
     # the plant moved on the true states under the applied torques (steps without touchdown)
