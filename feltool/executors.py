@@ -13,6 +13,7 @@ import json
 import multiprocessing as mp
 import os
 import signal
+from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -22,7 +23,10 @@ from typing import Any
 from feltool.checkpoint import Checkpointer, install_stop_handlers
 from feltool.errors import InputError
 
-_CACHE: dict[str, Any] = {}
+#: The experiments built last in this process, by config (a sweep's or a robustness run's
+#: points come one after the other: a few are enough to reuse each, and memory stays bounded)
+_CACHE: OrderedDict[str, Any] = OrderedDict()
+_CACHE_SIZE = 4
 _PROGRESS: dict[str, Any] = {}
 
 
@@ -58,7 +62,14 @@ def _ident(raw: dict, source) -> str:
 def remember(exp, raw: dict) -> None:
     """Keep a built experiment for the tasks of its config, so that this process and the
     workers forked from it reuse it (and its loaded compiled cycle) instead of rebuilding."""
-    _CACHE[_ident(raw, str(exp.source) if exp.source else None)] = exp
+    _keep(_ident(raw, str(exp.source) if exp.source else None), exp)
+
+
+def _keep(ident: str, exp) -> None:
+    _CACHE[ident] = exp
+    _CACHE.move_to_end(ident)
+    while len(_CACHE) > _CACHE_SIZE:
+        _CACHE.popitem(last=False)
 
 
 def run_task(task: Task, on_cycle: Callable | None = None, put: Callable | None = None):
@@ -71,7 +82,8 @@ def run_task(task: Task, on_cycle: Callable | None = None, put: Callable | None 
     ident = _ident(task.raw, task.source)
     exp = _CACHE.get(ident)
     if exp is None:
-        exp = _CACHE[ident] = build_experiment(task.raw, Path(task.source) if task.source else None)
+        exp = build_experiment(task.raw, Path(task.source) if task.source else None)
+    _keep(ident, exp)
     if put is None and _PROGRESS.get("queue") is not None:
         put = _PROGRESS["queue"].put
     progress = None

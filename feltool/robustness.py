@@ -22,7 +22,6 @@ import argparse
 import csv
 import json
 import sys
-import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -137,24 +136,13 @@ def reached(rows: list[dict], diverged: bool) -> tuple[bool, float | None]:
     return (not diverged and ratio is not None and ratio < GOAL), ratio
 
 
-def run_point(raw: dict[str, Any], source: Path | None, overrides: list[str], seeds: list[int],
-              cycles: int) -> list[dict[str, Any]]:
-    """Learn at one point of a scenario; one entry per seed."""
-    import copy
-
-    from feltool.config import apply_overrides
-    from feltool.experiment import build_experiment, run_seed
-
-    exp = build_experiment(apply_overrides(copy.deepcopy(raw), overrides), source=source)
-    out = []
-    for seed in seeds:
-        t0 = time.perf_counter()
-        res = run_seed(exp, seed, cycles=cycles)
-        ok, ratio = reached(res.rows, res.summary["diverged"])
-        out.append({"seed": seed, "reached": ok, "fb_ratio_tail": ratio,
-                    "diverged": res.summary["diverged"], "cycles": len(res.rows),
-                    "wall_s": round(time.perf_counter() - t0, 3)})
-    return out
+def seed_outcome(result) -> dict[str, Any]:
+    """One seed's entry of a point: whether it reached the goal, its tail ratio, whether it
+    stopped, its cycles and wall time [s]."""
+    diverged = result.summary["diverged"]
+    ok, ratio = reached(result.rows, diverged)
+    return {"seed": result.seed, "reached": ok, "fb_ratio_tail": ratio, "diverged": diverged,
+            "cycles": len(result.rows), "wall_s": result.summary["wall_s"]}
 
 
 def robustness(raw: dict[str, Any], source: Path | None, learners: list[str],
@@ -170,7 +158,7 @@ def robustness(raw: dict[str, Any], source: Path | None, learners: list[str],
         raw: The experiment's raw config mapping.
         learner_overrides: Extra ``--set`` overrides per learner (its tuned settings).
         log: A stream for one progress line per point, or None.
-        jobs: Points run at the same time (processes).
+        jobs: Seeds run at the same time (processes).
 
     Returns:
         ``{"goal": GOAL, "tail": TAIL, "seeds", "cycles", "scenarios": {name: {...}},
@@ -239,10 +227,27 @@ def _config_value(raw: dict[str, Any], sc: Scenario) -> float:
 
 def _run_points(raw, source, todo: dict[tuple, list[str]], seeds, cycles, log, jobs: int
                 ) -> dict[tuple, list[dict]]:
-    """:func:`run_point` for every point, ``jobs`` at a time; one progress line each."""
-    from concurrent.futures import ProcessPoolExecutor
+    """Every point's seeds as tasks of :func:`feltool.runner.execute` (``jobs`` processes; a
+    stop request ends them as a run's seeds end); one progress line per finished point."""
+    import copy
 
-    def report(key, per_seed):
+    from feltool.config import apply_overrides
+    from feltool.executors import Task
+    from feltool.runner import execute
+
+    keys = list(todo)
+    where = str(source) if source is not None else None
+    tasks = [Task(str(i), apply_overrides(copy.deepcopy(raw), todo[key]), where, seed, cycles)
+             for i, key in enumerate(keys) for seed in seeds]
+    found: dict[tuple, dict[int, dict]] = {key: {} for key in keys}
+    done = {}
+    for task, result in execute(tasks, jobs, None, "robustness", len(tasks) * cycles,
+                                show_progress=False):
+        key = keys[int(task.key)]
+        found[key][task.seed] = seed_outcome(result)
+        if len(found[key]) < len(seeds):
+            continue
+        done[key] = per_seed = [found[key][seed] for seed in seeds]
         if log is not None:
             learner, name, value = key
             ok = all(p["reached"] for p in per_seed)
@@ -250,19 +255,6 @@ def _run_points(raw, source, todo: dict[tuple, list[str]], seeds, cycles, log, j
                                for p in per_seed)
             print(f"robustness: {learner} {name}={value:g}: "
                   f"{'reached' if ok else 'not reached'} ({ratios})", file=log, flush=True)
-
-    done = {}
-    if jobs <= 1:
-        for key, sets in todo.items():
-            done[key] = run_point(raw, source, sets, seeds, cycles)
-            report(key, done[key])
-        return done
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = {key: pool.submit(run_point, raw, source, sets, seeds, cycles)
-                   for key, sets in todo.items()}
-        for key, fut in futures.items():
-            done[key] = fut.result()
-            report(key, done[key])
     return done
 
 
@@ -376,7 +368,7 @@ def add_command(sub, make_sub) -> None:
                    "runs/<name>-robustness)")
     p.add_argument("--set", action="append", metavar="A.B.C=VALUE",
                    help="override a config field (repeatable)")
-    p.add_argument("--jobs", "-j", type=int, default=1, help="points run at the same time "
+    p.add_argument("--jobs", "-j", type=int, default=1, help="seeds run at the same time "
                    "(processes; default 1)")
     p.add_argument("--quiet", "-q", action="store_true", help="print only the scores")
     p.set_defaults(func=cmd_robustness)
@@ -384,4 +376,4 @@ def add_command(sub, make_sub) -> None:
 
 __all__ = ["GOAL", "LEARNERS", "SCENARIOS", "Scenario", "WALKER_SCENARIOS", "add_command",
            "format_scores", "overrides_for", "points_to_run", "reached", "robustness",
-           "run_point", "scenarios_for", "write"]
+           "scenarios_for", "seed_outcome", "write"]
