@@ -35,6 +35,7 @@ import numpy as np
 
 from feltool.compiled_graph import (
     controlled_error,
+    cycle_stats,
     desired_from_data,
     layout,
     split_params,
@@ -647,17 +648,13 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
         theta_next = ca.if_else(stop == 0, step, theta)
     # metrics (feltool.python_engine.cycle_outcome and contact_metrics over the steps run)
     vrow = ca.repmat(valid, nv, 1)
-    mean = lambda M: ca.sum2(ca.fabs(M) * vrow) / m  # noqa: E731
-    dq = rw["qd"] - rw["q"]
-    stab = np.flatnonzero(law.stabilizing).tolist()
-    fb_stab = ca.sum1(mean(rw["Urows"])[stab]) if stab else ca.MX(0)
     finite = (ca.sum1(ca.sum2(ca.fabs(rw["q"]) * vrow)) + ca.sum1(ca.fabs(st["q"]))) < np.inf
-    stats = [mean(rw["U"]), ca.sqrt(ca.sum2(dq * dq * vrow) / m), ca.mmax(rw["err"] * valid),
-             ca.mmax(ca.fabs(rw["v"]) * vrow), fb_stab, ca.sum1(mean(rw["Uerr"])), finite]
-    hits = ca.MX.zeros(nv)
+    hits = ca.MX.zeros(2 * nv)  # the joints' limits are not checked; the motors' torques are
     for j, i in enumerate(W.motor_v):
-        hits[int(i)] = st["hits"][j]
-    stats += [ca.MX.zeros(nv), hits]
+        hits[nv + int(i)] = st["hits"][j]
+    stats = [cycle_stats(law, valid, ca.vertcat(rw["q"], rw["v"]), rw["qd"], rw["U"],
+                         rw["Urows"], rw["Uerr"], rw["err"] * valid, hits, finite, valid)]
+    stab = np.flatnonzero(law.stabilizing).tolist()
     cum = ca.cumsum(rw["impact"].T).T
     steps_at, lengths = [], []
     for t in range(spc):
