@@ -310,8 +310,9 @@ def compiled_runner(exp: Experiment, motion=None, theta0: np.ndarray | None = No
         out, = engine.outcomes(theta, world, state0, data, state[:, None], stats[:, None],
                                cycle.n)
         out.cycle = cycle
-        out.desired = motion.desired(theta, cycle)
-        motion.end_cycle()
+        transients = dict(motion.transients)  # as they are now: the motion moves on
+        out.desired = lambda: exp.primitives.desired(theta, cycle, transients)  # (the event
+        motion.end_cycle()                                 # traces ask for a few cycles')
         return out
 
     if engine.per_step:

@@ -291,9 +291,9 @@ def switch_trace(cycle: int, before: CycleOutcome, after: CycleOutcome,
     """The desired trajectory across a motion event at the start of ``cycle``: the cycle
     before it and the cycle it starts, one after the other (``switch<cycle>_t`` [s] from the
     event, ``_q_forward`` [rad], ``_v_forward`` [rad/s])."""
-    Q = np.concatenate([before.desired[0], after.desired[0]])
-    V = np.concatenate([before.desired[1], after.desired[1]])
-    t = (np.arange(len(Q)) - len(before.desired[0])) * dt
+    (Qb, Vb, _), (Qa, Va, _) = before.desired_motion(), after.desired_motion()
+    Q, V = np.concatenate([Qb, Qa]), np.concatenate([Vb, Va])
+    t = (np.arange(len(Q)) - len(Qb)) * dt
     return {f"switch{cycle}_t": t, f"switch{cycle}_q_forward": Q, f"switch{cycle}_v_forward": V}
 
 

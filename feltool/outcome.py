@@ -37,7 +37,8 @@ class CycleOutcome:
         contact: A physical walker's contact metrics of the cycle (:func:`contact_metrics`).
         cycle: The phase at the cycle's steps (None: the nominal cycle).
         desired: The cycle's desired positions, velocities and accelerations, each ``(n, nv)``,
-            where the engine has them.
+            or a function that computes them when asked (:meth:`desired_motion`), where the
+            engine has them.
     """
 
     theta_next: np.ndarray
@@ -57,7 +58,11 @@ class CycleOutcome:
     limit_hits: tuple[np.ndarray, np.ndarray] | None = None
     contact: dict | None = None
     cycle: PhaseSamples | None = None
-    desired: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    desired: tuple[np.ndarray, np.ndarray, np.ndarray] | Callable[[], tuple] | None = None
+
+    def desired_motion(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """:attr:`desired`, computed now if the engine left a function."""
+        return self.desired() if callable(self.desired) else self.desired
 
 
 @dataclass
