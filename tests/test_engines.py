@@ -143,6 +143,20 @@ def test_the_compiled_engine_runs_the_features_no_shipped_config_uses(overrides)
     _rows_equal(ref, comp)
 
 
+def test_the_desired_motion_across_a_motion_event_is_the_python_engines():
+    """The traces of the desired motion across an amplitude and goal event (the compiled
+    engine computes them only when asked, after the motion has moved on) equal the Python
+    engine's."""
+    over = ["events=[{cycle: 3, amplitude: {elbow: 1.3}, goal: {shoulder: 1.4}}]"]
+    std = CONFIGS / "two_link_standard.yaml"
+    ref = run_seed(load_experiment(std, ["backend=pinocchio", *over]), 0, 5)
+    comp = run_seed(load_experiment(std, ["backend=compiled", *over]), 0, 5)
+    keys = [k for k in ref.traces if k.startswith("switch3_")]
+    assert len(keys) == 3
+    for key in keys:
+        np.testing.assert_allclose(comp.traces[key], ref.traces[key], rtol=0, atol=1e-12)
+
+
 def test_the_pinned_walkers_gauss_newton_update_is_the_python_engines():
     """The rigid-impact walker with Levenberg-Marquardt steps (impact window, allocation,
     foot placement): the compiled engine's rows equal the Python engine's."""
