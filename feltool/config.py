@@ -690,6 +690,14 @@ class Guard(Strict):
               "between which the guard is armed; at the window's end the step ends by the clock "
               "(counted as clock_impacts in summary.json) [-].")
 
+    @model_validator(mode="after")
+    def _ordered(self) -> Guard:
+        start, end = self.window
+        if start > end:
+            raise ValueError(f"window: the guard is armed from {start} to {end} of the step; "
+                             "the start must not come after the end")
+        return self
+
 
 class FallCheck(Strict):
     """When a walker has fallen: a link's absolute angle beyond a limit."""
