@@ -80,6 +80,10 @@ def test_results_are_copies_not_views(rng):
     kept = first.copy()
     dyn.inverse(np.ones(2), np.ones(2), np.ones(2))
     np.testing.assert_array_equal(first, kept)
+    first = dyn.forward(np.zeros(2), np.zeros(2), np.zeros(2))  # (ABA, called directly)
+    kept = first.copy()
+    dyn.forward(np.ones(2), np.ones(2), np.ones(2))
+    np.testing.assert_array_equal(first, kept)
 
 
 def test_gravity_is_set_in_one_place():
@@ -101,3 +105,17 @@ def test_thesis_angle_convention():
     tip = data.oMf[model.getFrameId("tip")].translation
     np.testing.assert_allclose(elbow, [np.cos(np.pi / 3), 0, np.sin(np.pi / 3)], atol=1e-12)
     np.testing.assert_allclose(tip - elbow, [0, 0, 1.0], atol=1e-12)
+
+
+def test_pinocchio_dynamics_pickle_for_process_pools(rng):
+    """The loops call ABA directly (a partial of pin.aba on the dynamics' data); a pickled copy
+    gets its own data and the same numbers."""
+    import pickle
+
+    dyn = make_dynamics(load_robot("two_link_arm").model, "pinocchio")
+    copy = pickle.loads(pickle.dumps(dyn))
+    assert copy.data is not dyn.data
+    for _ in range(5):
+        q, v, tau = (rng.normal(size=2) for _ in range(3))
+        np.testing.assert_array_equal(copy.forward(q, v, tau), dyn.forward(q, v, tau))
+        np.testing.assert_array_equal(copy.forward(q, v, tau), pin.aba(dyn.model, dyn.data, q, v, tau))

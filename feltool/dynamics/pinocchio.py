@@ -32,8 +32,21 @@ class PinocchioDynamics:
         first = pin.aba(model, self.data, q0, z, z)
         second = pin.aba(model, self.data, q0, z, np.ones(model.nv))
         self._aba_owns = first is not second and not np.shares_memory(first, second)
-        if self._aba_owns:  # the loops' per-step call goes straight to Pinocchio
-            self.forward = partial(pin.aba, model, self.data)
+        self._direct()
+
+    def _direct(self) -> None:
+        """The loops' per-step call goes straight to Pinocchio (when ABA's result is new)."""
+        if self._aba_owns:
+            self.forward = partial(pin.aba, self.model, self.data)
+
+    def __getstate__(self) -> dict:  # pickles by its model and data (process pools)
+        state = dict(self.__dict__)
+        state.pop("forward", None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._direct()
 
     def inverse(self, q, v, a):
         return pin.rnea(self.model, self.data, q, v, a).copy()
