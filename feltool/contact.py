@@ -89,6 +89,18 @@ class Contact:
         vel = pin.getFrameVelocity(m, d, fid, pin.LOCAL_WORLD_ALIGNED).linear
         return np.array([p[0], p[2]]), np.array([vel[0], vel[2]])
 
+    def foot_positions(self, q: np.ndarray, *feet: str) -> list[np.ndarray]:
+        """(x, z) positions in [m] of the feet's contact points, from one kinematics pass."""
+        m, d = self.model, self.data
+        pin.forwardKinematics(m, d, q)
+        out = []
+        for foot in feet:
+            fid = self.walker.feet[foot]
+            pin.updateFramePlacement(m, d, fid)
+            p = d.oMf[fid].translation
+            out.append(np.array([p[0], p[2]]))
+        return out
+
     def drift(self, q: np.ndarray, v: np.ndarray, foot: str) -> np.ndarray:
         r""":math:`\dot J_c\dot q`: the foot point's (x, z) acceleration at zero joint
         acceleration, in [m/s^2]."""
@@ -131,8 +143,8 @@ class Contact:
             err = p - anchor
             if np.abs(err).max() < 1e-13:
                 break
-            J = self.jacobian(q, foot)
-            q = pin.integrate(self.model, q, -np.linalg.pinv(J) @ err)
+            J = self.jacobian(q, foot)  # 2 x nv, full row rank: J^+ = J^T (J J^T)^-1
+            q = pin.integrate(self.model, q, -J.T @ np.linalg.solve(J @ J.T, err))
         J = self.jacobian(q, foot)
         if np.abs(J @ v).max() > 1e-13:
             v = np.array(pin.impulseDynamics(self.model, self.data, q, v, J))

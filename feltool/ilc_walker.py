@@ -136,7 +136,8 @@ class OrbitStep:
             u = np.clip(u, -W.checks.effort, W.checks.effort)
         tau = W.B @ u
         c = W.contact
-        a = c.stance(q, v, tau, W.stance).a
+        now = c.stance(q, v, tau, W.stance)  # (also the first sub-step's start)
+        a = now.a
         err = u_err
         if exp.config.learning.error_estimate == "inverse_dynamics":
             M = mass_matrix(c.model, c.data, q)
@@ -145,8 +146,9 @@ class OrbitStep:
         touched = False
         h = L.dt / L.substeps
         stats, force = [StepStats()], np.zeros((1, 2))
-        for _ in range(L.substeps):
-            q, v, s = L._substep(c, q, v, tau, h, stats, force, 0, W.phase == "clock")
+        for i_sub in range(L.substeps):
+            q, v, s = L._substep(c, q, v, tau, h, stats, force, 0, W.phase == "clock",
+                                 now if i_sub == 0 else None)
             if s is not None:
                 touched, phase_acc = True, 0.0
                 if W.phase != "clock":

@@ -38,7 +38,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.optimize import brentq
 
-from feltool.contact import Contact
+from feltool.contact import Contact, StanceResult
 from feltool.control import FeedbackLaw
 from feltool.dynamics import Dynamics
 from feltool.dynamics.pinocchio import mass_matrix
@@ -170,10 +170,10 @@ class PhysicalWalker:
         anchor = np.zeros(2) if anchor is None else anchor
         qd, vd, ad = qd.copy(), vd.copy(), ad.copy()
         bx, bz = self.base_v[0], self.base_v[1]
-        for _ in range(2):  # exact after one step for translations at the root; two for safety
-            p, _ = c.foot_state(qd, vd, self.stance)
-            qd[self.base_q[0]] += anchor[0] - p[0]
-            qd[self.base_q[1]] += anchor[1] - p[1]
+        # exact in one step: the first two base coordinates translate the root along x and z
+        p, = c.foot_positions(qd, self.stance)
+        qd[self.base_q[0]] += anchor[0] - p[0]
+        qd[self.base_q[1]] += anchor[1] - p[1]
         J = c.jacobian(qd, self.stance)
         vd[[bx, bz]] = 0.0
         vd[[bx, bz]] = -(J @ vd)
@@ -379,7 +379,8 @@ class PhysicalLoop:
                 tau = W.B @ (u if dist is None else dist.apply(u))
                 # the inertial part of the feedforward's error, M (a_r - a): what the feedback
                 # has not (yet) produced of the reference's acceleration (PhysicalLoop doc)
-                a = a_phase = contact.stance(q, v, tau, W.stance).a
+                now = contact.stance(q, v, tau, W.stance)  # (also the first sub-step's start)
+                a = a_phase = now.a
                 if dist is None:
                     M = mass_matrix(contact.model, contact.data, q)
                 else:  # as measured: the known model's M at qm, a measured;
@@ -392,7 +393,8 @@ class PhysicalLoop:
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
                 ended = False
                 for i_sub in range(self.substeps):
-                    q, v, s = self._substep(contact, q, v, tau, h, steps, Force, k, clock)
+                    q, v, s = self._substep(contact, q, v, tau, h, steps, Force, k, clock,
+                                            now if i_sub == 0 else None)
                     if s is not None:
                         t_td = k * self.dt + i_sub * h + s
                         steps[-1].duration = t_td - t_step
@@ -504,13 +506,15 @@ class PhysicalLoop:
         return u_ff, mul(Dq), mul(Dv), mul(M)
 
     # -- one Runge-Kutta sub-step with the contact events ------------------------------------------
-    def _rk4(self, contact: Contact, q, v, tau, h):
+    def _rk4(self, contact: Contact, q, v, tau, h, a1=None):
+        """Classical Runge-Kutta over ``h`` [s] with the stance foot held (``a1``: the
+        accelerations at ``(q, v)``, if known)."""
         W, model = self.walker, contact.model
 
         def f(qq, vv):
             return contact.stance(qq, vv, tau, W.stance).a
 
-        a1 = f(q, v)
+        a1 = f(q, v) if a1 is None else a1
         q2, v2 = pin.integrate(model, q, 0.5 * h * v), v + 0.5 * h * a1
         a2 = f(q2, v2)
         q3, v3 = pin.integrate(model, q, 0.5 * h * v2), v + 0.5 * h * a2
@@ -520,12 +524,14 @@ class PhysicalLoop:
         dq = h / 6.0 * (v + 2 * v2 + 2 * v3 + v4)
         return pin.integrate(model, q, dq), v + h / 6.0 * (a1 + 2 * a2 + 2 * a3 + a4)
 
-    def _substep(self, contact: Contact, q, v, tau, h, steps, Force, k, finish: bool = True):
+    def _substep(self, contact: Contact, q, v, tau, h, steps, Force, k, finish: bool = True,
+                 start: StanceResult | None = None):
         """Integrate one sub-step; returns ``(q, v, s)`` with ``s`` the touchdown's time in the
         sub-step [s], or None. After a touchdown the rest of the sub-step runs on when
-        ``finish`` (clock phase); otherwise the state at the touchdown is returned."""
+        ``finish`` (clock phase); otherwise the state at the touchdown is returned. ``start``:
+        the stance dynamics at ``(q, v, tau)``, if the caller has them."""
         W, chk, st = self.walker, self.walker.checks, steps[-1]
-        res = contact.stance(q, v, tau, W.stance)
+        res = contact.stance(q, v, tau, W.stance) if start is None else start
         Fx, Fz = res.force
         Force[k] = res.force
         st.min_normal_force = min(st.min_normal_force, float(Fz))
@@ -538,9 +544,8 @@ class PhysicalLoop:
         if ratio > chk.friction:
             raise NotWalking(f"the stance foot's friction ratio |F_x|/F_z is {ratio:.3g} "
                              f"(walking.friction = {chk.friction}): the foot would slide", "friction")
-        anchor = contact.foot_state(q, v, W.stance)[0]
-        z0 = contact.foot_state(q, v, W.swing)[0][1]
-        q1, v1 = self._rk4(contact, q, v, tau, h)
+        anchor, (_, z0) = contact.foot_positions(q, W.stance, W.swing)
+        q1, v1 = self._rk4(contact, q, v, tau, h, res.a)
         q1, v1 = contact.hold(q1, v1, W.stance, anchor)
         (sx, sz), _ = contact.foot_state(q1, v1, W.swing)
         ahead = sx - anchor[0]
@@ -559,11 +564,11 @@ class PhysicalLoop:
             return q1, v1, None
         # Touchdown inside this sub-step: its time by Brent's method on the sub-step's length.
         def height(s):
-            qs, vs = self._rk4(contact, q, v, tau, s)
-            return contact.foot_state(qs, vs, W.swing)[0][1]
+            qs, vs = self._rk4(contact, q, v, tau, s, res.a)
+            return contact.foot_positions(qs, W.swing)[0][1]
 
         s = brentq(height, 0.0, h, xtol=1e-12, rtol=1e-12, maxiter=100)
-        qs, vs = self._rk4(contact, q, v, tau, s)
+        qs, vs = self._rk4(contact, q, v, tau, s, res.a)
         qs, vs = contact.hold(qs, vs, W.stance, anchor)
         (tx, tz), (tvx, tvz) = contact.foot_state(qs, vs, W.swing)
         st.touchdown_height = float(tz)
