@@ -280,24 +280,27 @@ class HybridLoop:
         step is a few vector operations around Pinocchio's RNEA, CRBA (allocation) and ABA."""
         n, nv = P.shape
         W, law, alloc = self.walker, self.law, self.allocation
-        Q, V, U, Urows, Uerr = (np.zeros((n, nv)) for _ in range(5))
+        Q, V, U = (np.zeros((n, nv)) for _ in range(3))
         placing = W is not None and W.placement is not None
         offsets = np.zeros((n, 2)) if placing else None  # (a, b) of the foot placement
         # the desired joint state at each stance label, q_d = G_s p_d, and its references
         G = W.G if W else (np.eye(nv),)
         desired = [(P @ g.T, Pv @ g.T, Pa @ g.T) for g in G]
-        tracked, held = law.reference_rows()
         linear = law.linear  # its own outputs are the joint torques, the learning signal their
         if linear:           # error rows (feltool.cycle.feedback), formed after the loop
             Kq, Kv = law.kp[:, None] * law.C, law.kd[:, None] * law.C
-            affine = [law.kp * (qd @ tracked.T + held) + law.kd * (vd @ tracked.T)
-                      for qd, vd, _ in desired]
-        else:
-            affine = [repeat(None, n)] * len(desired)
+            affine = []
+            for qd, vd, _ in desired:
+                R, Rd = law.references(qd, vd)
+                affine.append(law.kp * R + law.kd * Rd)
+        else:  # (each label its own iterator)
+            affine = [repeat(None, n) for _ in desired]
+            Urows, Uerr = np.zeros((n, nv)), np.zeros((n, nv))
         rows = [list(zip(*d, b)) for d, b in zip(desired, affine)]
         if placing:
             c = W.placement_direction
-            kc, kdc = law.kp * (tracked @ c), law.kd * (tracked @ c)
+            tc = law.reference_rows()[0] @ c
+            kc, kdc = law.kp * tc, law.kd * tc
         impacts, stance, fall = [], 0, None
         h = self.dt / self.substeps
         Ts = n * self.dt / W.steps_per_cycle if W else None
@@ -351,9 +354,10 @@ class HybridLoop:
         if placing:  # the same numbers as the loop's q_d + a c
             Qd, Vd = Qd + offsets[:k_end, :1] * c, Vd + offsets[:k_end, 1:] * c
         U = U[:k_end]
-        u_rows, u_err = Urows[:k_end], Uerr[:k_end]
         if linear:
             u_rows, u_err = U, np.where(self.error_rows > 0, U, 0.0)
+        else:
+            u_rows, u_err = Urows[:k_end], Uerr[:k_end]
         return HybridLog(Q[:k_end], V[:k_end], U, q, v, Qd, Vd, Ad, labels, impacts, fall,
                          u_rows, u_err)
 

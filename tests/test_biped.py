@@ -139,6 +139,23 @@ def test_inertia_weighted_allocation_is_the_formula_with_the_inverse_mass_matrix
         np.testing.assert_allclose(alloc.joint_torque(q, tau), B @ u, rtol=0, atol=1e-11)
 
 
+def test_a_pinned_walker_with_a_frame_angle_target_runs_across_its_impacts():
+    """A nonlinear (frame-angle) law on the pinned walker takes the loop's general path: each
+    stance label has its own rows (a shared iterator once left the second label's empty and
+    the first impact raised IndexError); its rows equal the compiled engine's."""
+    over = ["walking.poincare=false",
+            "joints.torso_hip.target={frame: torso, vector: [0, 0, 1], about: [0, 1, 0], "
+            "value: 0.5235987755982988}"]
+    ref = run_seed(load_experiment(CONFIGS / "biped_torso.yaml", ["backend=pinocchio", *over]),
+                   0, 2)
+    comp = run_seed(load_experiment(CONFIGS / "biped_torso.yaml", ["backend=compiled", *over]),
+                    0, 2)
+    assert len(ref.rows) == 2 and ref.summary["guard_impacts"] + ref.summary["clock_impacts"] == 4
+    for key in ref.rows[0]:
+        np.testing.assert_allclose([r[key] for r in comp.rows], [r[key] for r in ref.rows],
+                                   rtol=1e-8, atol=1e-12, err_msg=key)
+
+
 def test_a_fall_stops_the_seed_as_diverged():
     exp = load_experiment(CONFIGS / "biped_torso.yaml",
                           ["walking.fall.max_abs=0.05", "sim.cycles=3"])
