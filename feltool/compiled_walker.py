@@ -42,7 +42,7 @@ from feltool.compiled_graph import (
     symbolic_frames,
     symbolic_reference,
 )
-from feltool.cycle import advance, feedback
+from feltool.cycle import advance, allocate, feedback
 from feltool.dynamics.casadi_backend import (
     symbolic_frame_kinematics,
     symbolic_rnea,
@@ -151,9 +151,9 @@ def walker_step_function(exp, plant, lay) -> ca.Function:
         if alloc.rule == "pseudo_inverse":
             tau = B @ (ca.DM(np.linalg.pinv(alloc.B)) @ tau)
         else:
-            Mq = _mass_matrix(alloc.model)(q)
-            MiB = ca.solve(Mq, B)
-            tau = B @ ca.solve(B.T @ MiB, MiB.T @ tau)
+            N = ca.DM(alloc.N)
+            tau = allocate(CASADI, _mass_matrix(alloc.model)(q) if N.shape[1] else None, N,
+                           tau)
     else:
         tau = ca.DM(H.actuated) * tau
     q1, v1 = advance(CASADI, symbolic_forward(plant), q, v, tau, dt / H.substeps, H.substeps,

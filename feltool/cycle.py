@@ -138,6 +138,21 @@ def clamp(xp, limits, q, v):
     return xp.clip(q, limits.lower, limits.upper), xp.where(stop, 0.0, v)
 
 
+def allocate(xp, M, N, tau):
+    r"""The joint torques :math:`B u` of the inertia-weighted allocation
+    :math:`u = (B^\top M^{-1} B)^{-1} B^\top M^{-1}\tau` (:class:`feltool.hybrid.Allocation`):
+    the projection of :math:`\tau` onto the motors' range along :math:`M N` (its complement in
+    the metric :math:`M^{-1}`), :math:`B u = \tau - M N (N^\top M N)^{-1} N^\top \tau`, with
+    ``N`` ``(nv, nv - k)`` the directions no motor acts on (:math:`N^\top B = 0`; numbers, in
+    the namespace's matrix type): M itself and a solve of the size of the unactuated directions
+    (a division for one). ``M`` may be None when every direction has a motor."""
+    if N.shape[1] == 0:  # a motor for every direction: B u = tau
+        return tau
+    MN = M @ N
+    S, r = N.T @ MN, N.T @ tau
+    return tau - MN @ (r / S[0, 0] if N.shape[1] == 1 else xp.solve(S, r))
+
+
 def fel_update(xp, theta_learned, grad, hess, rates: np.ndarray, is_goal: np.ndarray,
                update: str, damping: float):
     """The learned parameters after one update (eq. 3.6) from :math:`g = \\sum_k J_k^\\top
@@ -213,5 +228,5 @@ def fel_sums(xp, sens: list, deriv: list, E, rows=None):
     return g, xp.blocks(blocks)
 
 
-__all__ = ["advance", "clamp", "euler_map", "feedback", "fel_sums", "fel_update", "plain",
+__all__ = ["advance", "allocate", "clamp", "euler_map", "feedback", "fel_sums", "fel_update", "plain",
            "stepper", "wrap"]

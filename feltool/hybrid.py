@@ -38,7 +38,7 @@ import pinocchio as pin
 import scipy.linalg
 
 from feltool.control import FeedbackLaw
-from feltool.cycle import stepper
+from feltool.cycle import allocate, stepper
 from feltool.dynamics import Dynamics
 from feltool.dynamics.pinocchio import mass_matrix
 from feltool.ops import NUMPY
@@ -69,34 +69,12 @@ class Allocation:
         self.N = scipy.linalg.null_space(self.B.T)
 
     def joint_torque(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        r"""The joint torques :math:`B u` in [N m] the motors deliver for a wanted ``tau``.
-
-        ``inertia_weighted``: :math:`B u` is the projection of :math:`\tau` onto the motors'
-        range along :math:`M N` (the complement in the metric :math:`M^{-1}`), so
-        :math:`B u = \tau - M N (N^\top M N)^{-1} N^\top \tau` -- the same torques as the
-        formula above, from Pinocchio's CRBA (M, not its inverse) and a solve of the size of
-        the unactuated directions (one for a walker's free pivot)."""
+        """The joint torques :math:`B u` in [N m] the motors deliver for a wanted ``tau``
+        (``inertia_weighted``: :func:`feltool.cycle.allocate`, from Pinocchio's CRBA)."""
         if self.rule == "pseudo_inverse":
             return self.B @ (self._pinv @ tau)
-        N = self.N
-        if N.shape[1] == 0:  # a motor for every direction: B u = tau
-            return tau
-        MN = mass_matrix(self.model, self.data, q).dot(N)
-        return tau - MN.dot(_solve_small(N.T.dot(MN), N.T.dot(tau)))
-
-
-def _solve_small(S: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``S^-1 r`` for a symmetric positive definite ``S``: one or two unknowns by the
-    closed-form inverse (numpy's solve costs microseconds of call overhead per control step),
-    else LU."""
-    if len(r) == 1:
-        return r / S[0, 0]
-    if len(r) == 2:
-        (a, b), (_, d) = S.tolist()
-        r0, r1 = r.tolist()
-        det = a * d - b * b
-        return np.array([(d * r0 - b * r1) / det, (a * r1 - b * r0) / det])
-    return np.linalg.solve(S, r)
+        M = mass_matrix(self.model, self.data, q) if self.N.shape[1] else None
+        return allocate(NUMPY, M, self.N, tau)
 
 
 @dataclass
