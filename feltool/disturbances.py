@@ -114,6 +114,11 @@ class DisturbedLoop(ClosedLoop):
             self.buffer = np.array(saved["disturbance_buffer"], dtype=float)
 
 
+def cycle_rng(seed: int, cycle: int) -> np.random.Generator:
+    """The disturbances' random draws of one cycle of a seed (the same after a resume)."""
+    return np.random.default_rng([seed, 17, cycle])
+
+
 def delayed(buffer: np.ndarray | None, command: np.ndarray, d: int):
     """``(applied, buffer)``: the command ``d`` control steps late (the first ``d`` steps
     repeat the first command), and the buffer of the ``d`` commands still to come (None

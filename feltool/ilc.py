@@ -263,7 +263,7 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
     each cycle's disturbances, the delay buffer) and exposes it to checkpoints as
     ``extra_state()`` / ``restore_state(saved)`` and to the run's params as ``extra_params()``.
     """
-    from feltool.disturbances import disturbed_loop
+    from feltool.disturbances import cycle_rng, disturbed_loop
 
     cfg = exp.config
     update = cfg.learning.update
@@ -284,7 +284,7 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
         loop = loop_for(plant)
         if dloop is not None:
             loop = dloop
-            dloop.rng = np.random.default_rng([seed, 17, state["cycle"]])
+            dloop.rng = cycle_rng(seed, state["cycle"])
         if update not in OWN_RUNNER:
             return per_cycle(exp, theta, q, v, loop)
         u_ff = u0.copy()

@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from feltool.disturbances import disturbed_plant, walker_disturbance
+from feltool.disturbances import cycle_rng, disturbed_plant, walker_disturbance
 from feltool.dynamics.pinocchio import mass_matrix
 from feltool.ilc import ILC_UPDATES, OWN_RUNNER, NormOptimalILC, PTypeILC, with_state
 from feltool.python_engine import error_torques, hybrid_cycle, impact_masked
@@ -296,7 +296,7 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int) -> Callable:
     walker for the ILC learners, the baseline, and any learner under ``disturbances:``
     (FEL's own update then runs as without them, on the disturbed loop's measurements).
 
-    The disturbances are drawn from ``default_rng([seed, 17, cycle])``; the learned sequence,
+    The disturbances are drawn from :func:`~feltool.disturbances.cycle_rng`; the learned sequence,
     the cycle count and the disturbances' state are exposed to checkpoints and params as in
     :func:`feltool.ilc.with_state`.
     """
@@ -317,7 +317,7 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int) -> Callable:
     def run(theta, q, v, plant, theta_m=None):
         state["cycle"] += 1
         if loop.disturbance is not None:
-            loop.disturbance.start_cycle(np.random.default_rng([seed, 17, state["cycle"]]))
+            loop.disturbance.start_cycle(cycle_rng(seed, state["cycle"]))
         if plant_scaled is not None:
             plant = plant_scaled
             if state["cycle"] == 1:  # the designed start, stood on the scaled walker's foot

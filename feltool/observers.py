@@ -55,7 +55,6 @@ class SeedRecord:
         self.loop_s, self.wall_before = 0.0, 0.0
         self.started = time.perf_counter()
         self.last: CycleOutcome | None = None
-        self._before: CycleOutcome | None = None
         self._switches = {ev.cycle for _, ev in exp.config.motion_events}
 
     def count(self, out: CycleOutcome, loop_s: float) -> None:
@@ -85,10 +84,10 @@ class SeedRecord:
             self.contacts.append(out.contact)
         if cycle == 1:
             self.traces.update(cycle_trace("first", *out.trace()))
-        before = self._before
+        before = self.last
         if cycle in self._switches and before is not None and before.desired is not None:
             self.traces.update(switch_trace(cycle, before, out, self.exp.config.dt))
-        self._before = self.last = out
+        self.last = out
         self.history.append(state.theta[self.exp.learner.learned].copy())
         if self.exp.model_learner is not None:
             self.model_history.append(state.theta_m)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from feltool.control import FeedbackLaw
-from feltool.cycle import advance, euler_map, plain, stepper
+from feltool.cycle import advance, euler_map, plain
 from feltool.dynamics import Dynamics
 from feltool.ops import NUMPY
 
@@ -140,11 +140,9 @@ class ClosedLoop:
             for x, f, qk, vk, x_next in zip(X, F, X[:, :nv], X[:, nv:], X[1:]):
                 Gamma.dot(forward(qk, vk, f - SK.dot(x)), out=x_next)
                 x_next += Phi.dot(x)
-        else:
-            step = stepper(NUMPY, self.dynamics.forward, self.dt / self.substeps,
-                           self.substeps, semi, lim)
+        else:  # sub-steps, explicit Euler or limits to apply
             for x, f, x_next in zip(X, F, X[1:]):  # (.dot: less call overhead than @)
-                x_next[:nv], x_next[nv:] = step(x[:nv], x[nv:], f - SK.dot(x))
+                x_next[:nv], x_next[nv:] = self.advance(x[:nv], x[nv:], f - SK.dot(x))
         q, v, X = X[n, :nv].copy(), X[n, nv:].copy(), X[:n]
         U = B - X @ K.T
         log = CycleLog(X[:, :nv], X[:, nv:], U, q, v, U, U * self.error_rows)

@@ -385,10 +385,11 @@ class PhysicalLoop:
                     M = mass_matrix(contact.model, contact.data, q)
                 else:  # as measured: the known model's M at qm, a measured;
                     M, a = dist.inertia(qm), dist.acceleration(a)  # the phase's: predicted
-                    a_phase = W.contact.stance(qm, vm, W.B @ u, W.stance).a
                 Inert[k] = M @ (ar - a)
                 if W.phase == "mechanical":  # the phase's acceleration for the next step,
                     # from the (known model's) centre of mass's acceleration now
+                    if dist is not None:
+                        a_phase = W.contact.stance(qm, vm, W.B @ u, W.stance).a
                     phase_acc = self._phase_acceleration(W.com_x(qm, vm, a_phase)[2])
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
                 ended = False

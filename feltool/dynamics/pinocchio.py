@@ -11,8 +11,9 @@ import pinocchio as pin
 class PinocchioDynamics:
     """Known models of a :class:`pinocchio.Model` computed by Pinocchio's algorithms.
 
-    Pinocchio returns views into its ``Data`` buffers; every method here returns a copy so that
-    a later call cannot change an earlier result.
+    Pinocchio returns views into its ``Data`` buffers; every method here returns a new array so
+    that a later call cannot change an earlier result (``forward`` is Pinocchio's ABA itself
+    where that already returns one).
     """
 
     def __init__(self, model: pin.Model):
@@ -51,9 +52,8 @@ class PinocchioDynamics:
     def inverse(self, q, v, a):
         return pin.rnea(self.model, self.data, q, v, a).copy()
 
-    def forward(self, q, v, tau):
-        a = pin.aba(self.model, self.data, q, v, tau)
-        return a if self._aba_owns else a.copy()
+    def forward(self, q, v, tau):  # (a Pinocchio that returns a view; else see _direct)
+        return pin.aba(self.model, self.data, q, v, tau).copy()
 
     def inverse_derivatives(self, q, v, a):
         pin.computeRNEADerivatives(self.model, self.data, q, v, a)
