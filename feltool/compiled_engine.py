@@ -362,11 +362,9 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
     """The physical walker: one cycle per call. A cycle the graph reports stopped (a contact
     check, a fall, no touchdown) is the seed's last: the Python engine reruns it from the same
     state for its message and numbers."""
-    from feltool.compiled_physical import CONTACT, PhysicalGraph
+    from feltool.compiled_physical import CONTACT, row_fields, unpack
 
     nv, PL, spc = engine.lay.nv, engine.lay.n_learned, exp.hybrid.walker.steps_per_cycle
-    fields = PhysicalGraph(exp).row_fields
-    offsets = np.cumsum([0] + [sz for _, sz in fields])
     k = 4 * nv + len(SCALARS)
 
     def run(theta, q, v, plant, theta_m=None) -> CycleOutcome:
@@ -389,7 +387,7 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
 
         def trace():
             rows = engine.trace(0, state0, data)[2]
-            rw = {n: rows[o:o + sz, :m].T for (n, sz), o in zip(fields, offsets)}
+            rw = {n: x[:, :m].T for n, x in unpack(rows, row_fields(nv)).items()}
             return CycleLog(rw["q"], rw["v"], rw["U"], x_end[:nv], x_end[nv:], rw["Urows"],
                             rw["Uerr"]), rw["qd"]
 

@@ -91,7 +91,7 @@ class _Kin:
         W = loop.walker
         model = W.walker.model
         self.nv = nv = model.nv
-        self.model, self.W, self.loop = model, W, loop
+        self.W = W
         self.bx, self.bz = int(W.base_v[0]), int(W.base_v[1])
         self.bq0, self.bq1 = int(W.base_q[0]), int(W.base_q[1])
         q, v, a, tau = (ca.SX.sym(s, nv) for s in ("q", "v", "a", "tau"))
@@ -199,7 +199,7 @@ class _Kin:
 
     def allocation(self, q, Mq):
         """:meth:`PhysicalWalker.allocation_matrix`, ``(k, nv)``."""
-        Mi = ca.inv(Mq) if isinstance(q, ca.MX) else ca.solve(Mq, ca.DM.eye(self.nv))
+        Mi = ca.inv(Mq)
         J = self.feet[self.W.stance](q, 0 * q)[1]
         MiJ = ca.mtimes(Mi, J.T)
         Wm = Mi - ca.mtimes(MiJ, ca.solve(ca.mtimes(J, MiJ), MiJ.T))
@@ -226,7 +226,7 @@ class _Step:
     """The control step of a physical walker (MX, conditional on the cycle still running)."""
 
     def __init__(self, exp, kin: _Kin):
-        self.exp, self.kin = exp, kin
+        self.kin = kin
         loop, W = exp.hybrid, kin.W
         self.nv, self.k = kin.nv, W.B.shape[1]
         self.n, self.spc = exp.primitives.n_steps, W.steps_per_cycle
@@ -234,27 +234,24 @@ class _Step:
         self.dt, self.substeps = loop.dt, loop.substeps
         self.refs = sorted(loop.reference)
 
-    # the state carried from step to step, in order
-    STATE = ("q", "v", "n_imp", "phase_acc", "stop", "done", "min_fn", "max_ratio",
-             "min_clear", "max_imp_ratio", "energy", "length", "hits", "work_unused")
-
     def sizes(self) -> dict:
+        """The state carried from step to step, in order, with the sizes of its fields."""
         nv, k = self.nv, self.k
         return {"q": nv, "v": nv, "n_imp": 1, "phase_acc": 1, "stop": 1, "done": 1,
                 "min_fn": 1, "max_ratio": 1, "min_clear": 1, "max_imp_ratio": 1, "energy": 1,
-                "length": 1, "hits": k, "work_unused": 1}
+                "length": 1, "hits": k}
 
     def substep(self) -> ca.Function:
-        """One sub-step without a touchdown's branch: ``(q, v, tau, h, st) -> (q1, v1, st,
-        landing, anchor, z0)`` with the contact checks (``st``: stop, min_fn, max_ratio,
-        min_clear)."""
+        """One sub-step without a touchdown's branch: ``(q, v, tau, h, st, a1, F) -> (q1, v1,
+        st, landing, anchor, z0)`` with the contact checks (``st``: stop, min_fn, max_ratio,
+        min_clear); ``a1, F``: the stance dynamics at ``(q, v, tau)`` (the control step's for
+        its first sub-step)."""
         kin, W = self.kin, self.kin.W
         chk = W.checks
         nv = self.nv
-        q, v, tau = (ca.MX.sym(s, nv) for s in ("q", "v", "tau"))
-        h, st = ca.MX.sym("h"), ca.MX.sym("st", 4)
+        q, v, tau, a1 = (ca.MX.sym(s, nv) for s in ("q", "v", "tau", "a1"))
+        h, st, F = ca.MX.sym("h"), ca.MX.sym("st", 4), ca.MX.sym("F", 2)
         stop, min_fn, max_ratio, min_clear = st[0], st[1], st[2], st[3]
-        a1, F = kin.stance(q, v, tau)
         Fx, Fz = F[0], F[1]
         min_fn = ca.fmin(min_fn, Fz)
         bad_fn = ca.logic_or(Fz <= chk.normal_force_min, Fz <= 0.0)
@@ -275,7 +272,7 @@ class _Step:
         min_clear = ca.if_else(count, ca.fmin(min_clear, sp[1]), min_clear)
         stop = ca.if_else(ca.logic_and(ca.logic_and(stop == 0, count), sp[1] < -chk.clearance_tol),
                           _stop("clearance"), stop)
-        return ca.Function("substep", [q, v, tau, h, st],
+        return ca.Function("substep", [q, v, tau, h, st, a1, F],
                            [q1, v1, ca.vertcat(stop, min_fn, max_ratio, min_clear), landing,
                             anchor, z0])
 
@@ -398,7 +395,7 @@ class _Control:
         if W.checks.torques == "ignore":
             over = ca.MX.zeros(k)
         tau = ca.mtimes(kin.B, u)
-        a_now = kin.stance(q, v, tau)[0]
+        a_now, F_now = kin.stance(q, v, tau)  # (also the first sub-step's start)
         inert = ca.mtimes(Mq, ar - a_now)
         xc_acc = kin.com_x(q, v, a_now)[2]
         phase_acc_next = ca.if_else(x_rate > 1e-9, (xc_acc - xa_f * rate**2) / x_rate, 0.0)
@@ -406,7 +403,23 @@ class _Control:
         err = controlled_error(law, symbolic_reference(law, qd, vd, targets)[0], q)
         return ca.Function("control", [q, v, phase_acc, n_imp, consts, kp, kd, targets],
                            [tau, u, over, qd, vd, ad, r, u_fb, u_rows, u_err, ca.vec(A), inert,
-                            phase_acc_next, jj, label, err])
+                            phase_acc_next, jj, label, err, a_now, F_now])
+
+
+def row_fields(nv: int) -> list[tuple[str, int]]:
+    """A control step's row of the trace: its fields in order, with their sizes."""
+    return [("valid", 1), ("q", nv), ("v", nv), ("qd", nv), ("r", nv), ("U", nv),
+            ("Urows", nv), ("Uerr", nv), ("err", 1), ("work", 1), ("impact", 1), ("length", 1)]
+
+
+def unpack(vec, fields) -> dict:
+    """``vec``'s consecutive rows (a column's entries, a matrix's rows) named by ``fields``
+    (``(name, size)`` pairs)."""
+    out, pos = {}, 0
+    for name, size in fields:
+        out[name] = vec[pos:pos + size, :]
+        pos += size
+    return out
 
 
 class PhysicalGraph:
@@ -427,19 +440,7 @@ class PhysicalGraph:
         self.gauss_newton = exp.learner.update == "gauss_newton"
         self.sizes.update(grad=PL, hess=PL * PL if self.gauss_newton else 0)
         self.n_state = sum(self.sizes.values())
-        nv, k = self.nv, self.k
-        self.row_fields = [("valid", 1), ("q", nv), ("v", nv), ("qd", nv), ("vd", nv),
-                           ("ad", nv), ("r", nv), ("U", nv), ("Urows", nv), ("Uerr", nv),
-                           ("A", k * nv), ("inert", nv), ("jj", 1), ("label", 1),
-                           ("err", 1), ("work", 1), ("impact", 1), ("length", 1)]
-        self.row_size = sum(sz for _, sz in self.row_fields)
-
-    def _unpack(self, vec, fields):
-        out, pos = {}, 0
-        for name, size in fields:
-            out[name] = vec[pos:pos + size]
-            pos += size
-        return out
+        self.row_size = sum(sz for _, sz in row_fields(self.nv))
 
     def step_function(self) -> ca.Function:
         """One control step (MX) ``(S, consts, kp, kd, targets) -> (S', row)``, run only while
@@ -449,10 +450,10 @@ class PhysicalGraph:
         consts = ca.MX.sym("consts", self.ctl.consts_size())
         kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
         srows = ca.MX.sym("srows", self.srows_size())
-        st = self._unpack(S, list(self.sizes.items()))
+        st = unpack(S, self.sizes.items())
         running = ca.logic_and(st["stop"] == 0, st["done"] == 0)
         (tau, u, over, qd, vd, ad, r, U, Urows, Uerr, A, inert, phase_acc_next, jj, label,
-         err) = self.ctl.function()(st["q"], st["v"], st["phase_acc"], st["n_imp"], consts,
+         err, a1, F) = self.ctl.function()(st["q"], st["v"], st["phase_acc"], st["n_imp"], consts,
                                     kp, kd, targets)
         hits = st["hits"] + over
         stop = st["stop"]
@@ -466,8 +467,10 @@ class PhysicalGraph:
         h = stp.dt / stp.substeps
         sub, td = self.stp.substep(), self.stp.touchdown()
         branch_fn = self._touchdown_switch(td)
-        for _ in range(stp.substeps):
-            q1, v1, checks1, landing, anchor, _ = sub(q, v, tau, h, checks)
+        for i_sub in range(stp.substeps):
+            if i_sub:
+                a1, F = self.kin.stance(q, v, tau)
+            q1, v1, checks1, landing, anchor, _ = sub(q, v, tau, h, checks, a1, F)
             land = ca.logic_and(landing, impact == 0)
             # the touchdown's branch is evaluated only when landing
             branch = branch_fn(land, q, v, tau, h, anchor, checks, q1, v1, checks1)
@@ -493,12 +496,12 @@ class PhysicalGraph:
                "max_imp_ratio": ca.if_else(impact, ca.fmax(st["max_imp_ratio"], ratio),
                                            st["max_imp_ratio"]),
                "energy": st["energy"] + impact * lost, "length": st["length"] + impact * length,
-               "hits": hits, "work_unused": st["work_unused"]}
+               "hits": hits}
         new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, Uerr + inert
                                                   if self.inverse_dynamics else Uerr, jj, srows)
         S_new = ca.vertcat(*[new[name] for name in self.sizes])
-        row = ca.vertcat(1, st["q"], st["v"], qd, vd, ad, r, U, Urows, Uerr, A, inert, jj,
-                         label, err, work, impact, impact * length)
+        row = ca.vertcat(1, st["q"], st["v"], qd, r, U, Urows, Uerr, err, work, impact,
+                         impact * length)  # (row_fields)
         args = [S, consts, kp, kd, targets, srows]
         body = ca.Function("phys_body", args, [S_new, row])
         idle = ca.Function("phys_idle", args, [S, ca.DM.zeros(self.row_size)])
@@ -591,9 +594,9 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     """The physical walker's cycle ``(state, data, params) -> (state', stats)`` (the arm's
     data with the referenced joints' samples appended); ``stats``: the arm's, then the stop
     code, the steps run, the touchdowns' steps and lengths, and :data:`CONTACT`. With
-    ``full``: the rows of every step (:attr:`PhysicalGraph.row_fields`)."""
+    ``full``: the rows of every step (:func:`row_fields`)."""
     g = PhysicalGraph(exp)
-    lay = layout(exp)
+    lay = g.lay
     kin, stp, W, law, learner = g.kin, g.stp, g.kin.W, exp.law, exp.learner
     nv, n, k, L, PL = g.nv, g.n, g.k, len(lay.blocks), lay.n_learned
     ns, spc = stp.ns, stp.spc
@@ -603,7 +606,7 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     params = ca.MX.sym("params", lay.n_params)
     theta, x0 = state[:PL], state[PL:]
     kp, kd, targets, rates, damping = split_params(lay, params)[:5]
-    sens, (P, Pv, Pa), _, pos = desired_from_data(lay, theta, data)
+    sens, (P, Pv, Pa), _, _ = desired_from_data(lay, theta, data)
     R = [P, Pv, Pa]
     for j, i in enumerate(refs):  # a referenced joint's feedback and phase follow samples
         for c in range(3):
@@ -624,14 +627,12 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     consts = ca.vertcat(*[ca.vec(M) for M in (P, Pv, Pa, *R)],
                         *[ca.horzcat(G[c, :], pad).T for c in range(3)])
     S0 = ca.vertcat(x0, 0, 0, ca.if_else(phase_bad, _stop("phase"), 0), 0, np.inf, 0, np.inf,
-                    -np.inf, 0, 0, ca.DM.zeros(k), 0, ca.DM.zeros(g.sizes["grad"]),
+                    -np.inf, 0, 0, ca.DM.zeros(k), ca.DM.zeros(g.sizes["grad"]),
                     ca.DM.zeros(g.sizes["hess"]))
     srows = ca.vertcat(*[ca.vec(sens[l][c].T) for l in range(L) for c in range(3)]) if L \
         else ca.MX.zeros(0)
     S, rows = g.steps_function()(S0, consts, kp, kd, targets, srows)
-    st = g._unpack(S, list(g.sizes.items()))
-    rw = {name: rows[off:off + size, :] for (name, size), off in
-          zip(g.row_fields, np.cumsum([0] + [sz for _, sz in g.row_fields]))}
+    st, rw = unpack(S, g.sizes.items()), unpack(rows, row_fields(nv))
     ended = st["n_imp"] >= spc
     stop = ca.if_else(ca.logic_and(st["stop"] == 0, 1 - ended), _stop("touchdown"), st["stop"])
     valid = rw["valid"]
@@ -667,7 +668,7 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     else:
         err_rows = [(C[i, :] @ rw["q"]) - targets[i] for i in stab]
     sq = sum(ca.sum2(wrap(CASADI, e_) ** 2 * valid) for e_ in err_rows) if err_rows else ca.MX(0)
-    stab_rms = ca.sqrt(sq / (m * max(1, len(err_rows)))) if err_rows else ca.MX(0)
+    stab_rms = ca.sqrt(sq / (m * len(err_rows))) if err_rows else ca.MX(0)
     n_steps = st["n_imp"]
     nan = ca.MX(np.nan)
     contact = [st["min_fn"], st["max_ratio"],
