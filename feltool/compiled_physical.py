@@ -173,10 +173,9 @@ class _Kin:
         """:meth:`feltool.walking.PhysicalWalker.complete` with the anchor at the origin."""
         bq0, bq1, bx, bz = self.bq0, self.bq1, self.bx, self.bz
         fk = self.feet[self.W.stance]
-        for _ in range(2):
-            p = fk(qd, vd)[0]
-            qd = ca.vertcat(*[qd[i] - (p[0] if i == bq0 else p[1] if i == bq1 else 0)
-                              for i in range(self.nv)])
+        p = fk(qd, vd)[0]  # exact in one step: the base translates the root along x and z
+        qd = ca.vertcat(*[qd[i] - (p[0] if i == bq0 else p[1] if i == bq1 else 0)
+                          for i in range(self.nv)])
         vz = _with(vd, {bx: 0, bz: 0})
         _, J, _, _ = fk(qd, vz)
         Jv = ca.mtimes(J, vz)
