@@ -22,7 +22,7 @@ bench: $(BIN)/.installed
 	$(BIN)/python benchmarks/backends.py
 
 docs: $(BIN)/.installed
-	$(BIN)/python -m feltool.docgen docs/configuration.md
+	$(BIN)/python -m feltool.config.docgen docs/configuration.md
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

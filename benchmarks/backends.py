@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from feltool.experiment import load_experiment, run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"

@@ -21,7 +21,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from feltool.experiment import load_experiment, run_seed  # noqa: E402
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "biped_torso.yaml"

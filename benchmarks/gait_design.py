@@ -22,9 +22,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from feltool.config import read_yaml  # noqa: E402
-from feltool.gait_config import gait_spec, walker_from_raw  # noqa: E402
-from feltool.gait_design import design_gait  # noqa: E402
+from feltool.config.files import read_yaml
+from feltool.gait.config import gait_spec, walker_from_raw
+from feltool.gait.design import design_gait
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "gaits"
 CASES = [  # label, config, designer options (as feltool gait's; the shipped configs' headers)

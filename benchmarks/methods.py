@@ -16,7 +16,7 @@ level, over ``--seeds`` seeds (0..n-1) at each config's cycles:
 * computation per cycle: wall time per learning cycle [ms] (one core),
 * learned numbers: how many values the learner stores.
 
-Then the robustness scores on the standard arm (:mod:`feltool.robustness`: every learner x
+Then the robustness scores on the standard arm (:mod:`feltool.runs.robustness`: every learner x
 scenario, ``--robust-seeds`` seeds), and the transfer test of the thesis's claim that ILC needs
 the same trajectory every cycle: after learning at T = 1 s, the period changes and the
 learned result is replayed without further learning -- FEL's RMP re-timed, ILC's torque
@@ -48,18 +48,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from feltool.config import read_yaml  # noqa: E402
-from feltool.control import wrap  # noqa: E402
-from feltool.experiment import load_experiment, run_seed  # noqa: E402
-from feltool.ilc import channels, cycle_runner  # noqa: E402
-from feltool.ilc_walker import lifted_model  # noqa: E402
-from feltool.robustness import (  # noqa: E402
-    LEARNERS,
-    SCENARIOS,
-    WALKER_SCENARIOS,
-    format_scores,
-    robustness,
-)
+from feltool.config.files import read_yaml
+from feltool.control.feedback import wrap
+from feltool.engines.ilc import channels, cycle_runner
+from feltool.engines.ilc_walker import lifted_model
+from feltool.runs.experiments import load_experiment
+from feltool.runs.robustness import LEARNERS, SCENARIOS, WALKER_SCENARIOS, format_scores, robustness
+from feltool.runs.seed import run_seed
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
@@ -257,9 +252,9 @@ def update_cost(repeats: int = 5) -> list[dict]:
 def _walker_cost_of(robot: str, config: str, best) -> dict:
     """As :func:`_cost_of` for a physical walker: FEL's motor-space update, ILC's per-sample
     updates; norm-optimal ILC's lifted model and its factor are built once (timed apart)."""
-    from feltool.ilc import NormOptimalILC, PTypeILC
-    from feltool.ilc_walker import norm_optimal_factor, phase_error
-    from feltool.python_engine import error_torques, motor_step
+    from feltool.engines.ilc_walker import norm_optimal_factor, phase_error
+    from feltool.engines.python import error_torques, motor_step
+    from feltool.learning.ilc import NormOptimalILC, PTypeILC
 
     exp = load_experiment(CONFIGS / f"{config}.yaml", overrides(config, "gauss_newton"))
     grad = load_experiment(CONFIGS / f"{config}.yaml", overrides(config, "gradient"))
@@ -291,7 +286,7 @@ def _walker_cost_of(robot: str, config: str, best) -> dict:
 
 
 def _cost_of(arm: str, config: str, best) -> dict:
-    from feltool.ilc import NormOptimalILC, PTypeILC, lifted_jacobian
+    from feltool.learning.ilc import NormOptimalILC, PTypeILC, lifted_jacobian
 
     exp = load_experiment(CONFIGS / f"{config}.yaml")
     gn = load_experiment(CONFIGS / f"{config}.yaml", ["learning.update=gauss_newton"])

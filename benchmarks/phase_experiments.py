@@ -21,8 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from feltool.experiment import load_experiment, run_seed
-from feltool.plots import _pyplot
+from feltool.runs.experiments import load_experiment
+from feltool.runs.plots import _pyplot
+from feltool.runs.seed import run_seed
 
 ROOT = Path(__file__).resolve().parent.parent
 STANDARD = ROOT / "configs" / "two_link_standard.yaml"

@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from feltool.experiment import load_experiment
-from feltool.seed import run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "biped_torso.yaml"
 

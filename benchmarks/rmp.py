@@ -34,9 +34,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from feltool import spectral  # noqa: E402
-from feltool.phase import ClockPhase  # noqa: E402
-from feltool.rmp import PrimitiveSet, RhythmicPrimitive  # noqa: E402
+from feltool.motion import spectral
+from feltool.motion.phase import ClockPhase
+from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive
 
 N_SAMPLES = 1000  # per period: 1 kHz at T = 1 s
 DT = 1.0 / N_SAMPLES

@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from feltool.sweep import run_sweep
+from feltool.runs.sweep import run_sweep
 
 CONFIG = Path(__file__).resolve().parent.parent / "configs" / "two_link_standard.yaml"
 

@@ -23,11 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from feltool.config import read_yaml
-from feltool.experiment import build_experiment
-from feltool.gait_config import gait_config, gait_spec, walker_from_raw
-from feltool.gait_design import GaitDesignError, design_gait
-from feltool.gait_orbit import verify_design
+from feltool.config.files import read_yaml
+from feltool.gait.config import gait_config, gait_spec, walker_from_raw
+from feltool.gait.design import GaitDesignError, design_gait
+from feltool.gait.orbit import verify_design
+from feltool.runs.experiments import build_experiment
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "gaits" / "three_link_walker.yaml"
 

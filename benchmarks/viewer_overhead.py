@@ -3,7 +3,7 @@
 
     python benchmarks/viewer_overhead.py [--cycles 1500] [--repeats 7] [--browser]
 
-Runs the same seed alternately without a viewer and with a :class:`feltool.rollout.LiveStream`
+Runs the same seed alternately without a viewer and with a :class:`feltool.viewer.rollout.LiveStream`
 on a private meshcat server (30 frames per second, as ``--view``), and prints the median steps
 per second of each, the slowdown, and the CPU share of the drawing process. With ``--browser`` a
 headless Chromium shows the page meanwhile, so the server forwards every frame to a browser.
@@ -18,9 +18,10 @@ import tempfile
 import time
 import warnings
 
-from feltool.experiment import load_experiment, run_seed
-from feltool.rollout import LiveStream
-from feltool.viewer import LiveViewer
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
+from feltool.viewer.live import LiveViewer
+from feltool.viewer.rollout import LiveStream
 
 
 def steps_per_s(exp, cycles: int, on_cycle=None) -> float:

@@ -17,8 +17,8 @@ import argparse
 
 import yaml
 
-from feltool.experiment import load_experiment
-from feltool.seed import run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 
 def main() -> None:

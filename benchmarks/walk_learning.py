@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from feltool.experiment import load_experiment
-from feltool.gait import poincare
-from feltool.seed import run_seed
+from feltool.gait.poincare import poincare
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 
 def seeds(spec: str) -> list[int]:

@@ -49,7 +49,7 @@ MAX_MASS_SCALE = 1.0e6      # plant.bodies.*.mass_scale [-]
 MAX_WEIGHT_SCALE = 100.0    # learn.weight_scale [-]
 MAX_DAMPING = 1.0e6         # Levenberg-Marquardt damping [-]
 
-#: Fraction of the available memory a planned run may use (see :mod:`feltool.memory`).
+#: Fraction of the available memory a planned run may use (see :mod:`feltool.config.memory`).
 MEMORY_FRACTION = 0.8
 
 

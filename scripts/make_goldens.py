@@ -26,8 +26,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from feltool.experiment import load_experiment, run_seed  # noqa: E402
-from feltool.rundir import write_metrics  # noqa: E402
+from feltool.runs.experiments import load_experiment  # noqa: E402
+from feltool.runs.rundir import write_metrics  # noqa: E402
+from feltool.runs.seed import run_seed  # noqa: E402
 
 DATA = ROOT / "tests" / "data"
 GOLDENS = {"two_link_standard": (0, 1), "two_link_human_arm": (0, 1)}  # config -> seeds

@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from feltool.experiment import load_experiment, run_seed
-from feltool.model_fel import identifiability, inertial_parameters
+from feltool.learning.model import identifiability, inertial_parameters
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Rows of the "when they interfere" table: label -> --set overrides (stabilizing feedback at the

@@ -42,7 +42,7 @@ class Fault:
 
 FAULTS = (
     Fault("wrong_sign_eq_3_6", "the FEL update of eq. 3.6 ascends: theta -= alpha J^T e",
-          (("feltool/fel.py", "theta[self.learned] += delta", "theta[self.learned] -= delta"),),
+          (("feltool/learning/fel.py", "theta[self.learned] += delta", "theta[self.learned] -= delta"),),
           ("tests/test_fel.py", "tests/test_configs_learn.py")),
     Fault("dropped_coriolis", "the known inverse model drops the velocity terms: RNEA(q, 0, a)",
           (("feltool/dynamics/pinocchio.py", "return pin.rnea(self.model, self.data, q, v, a).copy()",
@@ -51,20 +51,20 @@ FAULTS = (
             "out[k] = rnea(model, data, Q[k], 0 * V[k], A[k])")),
           ("tests/test_dynamics.py",)),
     Fault("truncated_exponential", "the RMP's matrix exponential keeps only the 2nd-order Taylor "
-          "terms", (("feltool/rmp.py", "for k in range(1, 20):", "for k in range(1, 3):"),),
+          "terms", (("feltool/motion/rmp.py", "for k in range(1, 20):", "for k in range(1, 3):"),),
           ("tests/test_rmp.py",)),
     Fault("impact_swap_off_by_one", "the impact relabelling swaps the stance leg with the joint "
-          "after the swing leg", (("feltool/experiment.py",
+          "after the swing leg", (("feltool/experiment/assemble.py",
                                    "a, b = joints.index(w.swap[0]), joints.index(w.swap[1])",
                                    "a, b = joints.index(w.swap[0]), joints.index(w.swap[1]) + 1"),),
           ("tests/test_biped.py",)),
     Fault("wrong_basis_width", "the von Mises width defaults to h = N instead of N / 2",
-          (("feltool/rmp.py", "self.width = float(n_basis / 2.0 if width is None else width)",
+          (("feltool/motion/rmp.py", "self.width = float(n_basis / 2.0 if width is None else width)",
             "self.width = float(n_basis if width is None else width)"),),
           ("tests/test_rmp.py", "tests/test_mismatch.py")),
     Fault("correction_on_every_joint", "the model correction also drives joints outside its error "
           "mask (the cause of the diverging mismatch seeds)",
-          (("feltool/model_fel.py", "return (Phi @ theta_m) * self.error_mask",
+          (("feltool/learning/model.py", "return (Phi @ theta_m) * self.error_mask",
             "return Phi @ theta_m"),),
           ("tests/test_mismatch.py",)),
 )

@@ -7,10 +7,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.control import FrameAngle
-from feltool.experiment import load_experiment, reduce_robot, run_seed
-from feltool.inspection import config_skeleton
-from feltool.robot import load_robot
+from feltool.experiment.assemble import reduce_robot
+from feltool.robot.frames import FrameAngle
+from feltool.robot.inspection import config_skeleton
+from feltool.robot.robot import load_robot
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS, feltool
 

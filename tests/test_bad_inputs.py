@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from feltool.cli import main
+from feltool.cli.main import main
 
 from .conftest import feltool
 
@@ -139,7 +139,7 @@ def _chain_urdf(n: int, joint_type: str) -> str:
 def test_urdf_link_count_is_bounded_and_long_chains_within_it_load(tmp_path, capsys):
     """Thousands of links overflowed the recursion of the checks (RecursionError) and of the
     URDF parser behind Pinocchio (a segfault); within the bound a long chain loads."""
-    from feltool.robot import load_robot
+    from feltool.robot.robot import load_robot
 
     (tmp_path / "long.urdf").write_text(_chain_urdf(5000, "revolute"))
     code, err = _run(["inspect", str(tmp_path / "long.urdf")], capsys)

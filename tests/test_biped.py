@@ -7,9 +7,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.experiment import load_experiment, run_seed
-from feltool.hybrid import Allocation
-from feltool.robot import load_robot
+from feltool.robot.robot import load_robot
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
+from feltool.walking.pinned import Allocation
 
 from .conftest import CONFIGS
 
@@ -175,7 +176,7 @@ def walked():
 
 
 def test_the_biped_walks_and_fel_reduces_the_summed_feedback(walked):
-    from feltool.experiment import stabilization_errors
+    from feltool.runs.observers import stabilization_errors
 
     exp, results = walked
     for result in results:
@@ -297,7 +298,7 @@ def test_foot_placement_lets_the_rigid_impact_walker_walk():
 
 
 def test_foot_placement_names_must_be_walking_angles():
-    from feltool.config import ConfigError
+    from feltool.errors import ConfigError
     with pytest.raises(ConfigError, match="foot_placement.follow"):
         load_experiment(CONFIGS / "biped_torso.yaml",
                         ["walking.foot_placement.angle_of=swing_hip",
@@ -322,8 +323,8 @@ def test_rigid_impact_walker_learns_with_an_impact_window():
 def test_impact_window_masks_the_learning_signal_and_is_only_for_walkers():
     from types import SimpleNamespace
 
-    from feltool.config import ConfigError
-    from feltool.python_engine import impact_masked
+    from feltool.engines.python import impact_masked
+    from feltool.errors import ConfigError
     exp = load_experiment(CONFIGS / "biped_torso_rigid.yaml")
     E = np.ones((200, 3))
     out = impact_masked(exp, SimpleNamespace(u_err=E, impacts=[(100, True, 0.3),
@@ -338,7 +339,7 @@ def test_impact_window_masks_the_learning_signal_and_is_only_for_walkers():
 def test_terminal_summary_of_a_walker(tmp_path, capsys):
     """`feltool run` of the pinned walker prints the walker's numbers and each learned joint's
     own feedback, not the arm's 'converged' line (a walker's summed feedback has a floor)."""
-    from feltool.cli import main
+    from feltool.cli.main import main
 
     code = main(["run", str(CONFIGS / "biped_torso.yaml"), "--seeds", "0", "--cycles", "3",
                  "--out", str(tmp_path / "run"), "--quiet"])

@@ -10,8 +10,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.dynamics.casadi_backend import (
-    CasadiDynamics,
+from feltool.dynamics.casadi_backend import CasadiDynamics
+from feltool.dynamics.symbolic import (
     symbolic_aba,
     symbolic_center_of_mass,
     symbolic_frame_kinematics,

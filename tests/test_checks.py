@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from feltool.checks import integrator_factor, sampled_pd_stable
-from feltool.cli import main
+from feltool.cli.main import main
+from feltool.experiment.checks import integrator_factor, sampled_pd_stable
 
 from .conftest import CONFIGS
 
@@ -64,10 +64,10 @@ def test_the_timestep_bound_is_the_simulator_s(integrator, substeps):
     """The one-step map of feltool's own closed loop (Pinocchio's ABA, the integrator and
     sub-steps of the config, the torque held over the step) for a 1-DoF link without gravity:
     its spectral radius is below 1 exactly where sampled_pd_stable says the loop is stable."""
-    from feltool.control import FeedbackLaw
-    from feltool.dynamics import make_dynamics
-    from feltool.robot import load_urdf_string
-    from feltool.simulate import ClosedLoop
+    from feltool.control.closed_loop import ClosedLoop
+    from feltool.control.feedback import FeedbackLaw
+    from feltool.dynamics.interface import make_dynamics
+    from feltool.robot.robot import load_urdf_string
 
     inertia = 0.7  # [kg m^2] about the joint
     link = (f'<link name="l"><inertial><mass value="1"/><inertia ixx="{inertia}" ixy="0" '
@@ -151,14 +151,14 @@ def test_coupled_error_joints_see_the_learned_joint(capsys):
 def test_every_walker_config_passes_the_physics_checks(path, capsys):
     """(tests/test_cli.py checks configs/*.yaml.) The walkers' passive base joints are no
     unreachable targets, their learned joints are seen by their error signals, and the gain
-    and timestep checks leave the hybrid loop alone (feltool.checks' docstring)."""
+    and timestep checks leave the hybrid loop alone (feltool.experiment.checks' docstring)."""
     code, lines = _check(capsys, path)
     assert code == 0, lines
 
 
 def test_the_bound_in_the_docstring_is_the_one_implemented():
     """Semi-implicit Euler with one sub-step: beta < 2 and alpha + 2 beta < 4; explicit Euler:
-    alpha <= beta and 2 beta - alpha < 4 (feltool.checks.sampled_pd_stable's docstring)."""
+    alpha <= beta and 2 beta - alpha < 4 (feltool.experiment.checks.sampled_pd_stable's docstring)."""
     rng = np.random.default_rng(0)
     for alpha, beta in rng.uniform(0, 4, (500, 2)):
         assert sampled_pd_stable(alpha, beta, 1.0) == (beta < 2 and alpha + 2 * beta < 4)

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from feltool.rundir import load_npz
+from feltool.runs.rundir import load_npz
 
 from .conftest import CONFIGS, feltool
 

@@ -8,7 +8,9 @@ import csv
 import numpy as np
 import pytest
 
-from feltool.experiment import load_experiment, run_seed
+from feltool.engines.compiled.engine import compiled_engine
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS, feltool
 
@@ -56,7 +58,7 @@ def test_compiled_cycle_gives_the_pinocchio_metrics(overrides):
 
 
 def _c_compiler() -> str:
-    """The compiler feltool.compiled would use; in CI its absence fails the suite (a skip is a
+    """The compiler feltool.engines.compiled.library would use; in CI its absence fails the suite (a skip is a
     failure there, tests/conftest.py) with this message naming what to install."""
     import os
     import shutil
@@ -75,7 +77,7 @@ def test_compiled_backend_builds_and_loads_a_shared_library(tmp_path, monkeypatc
     loaded from it, and its metrics equal the Pinocchio backend's to 1e-8."""
     from pathlib import Path
 
-    from feltool.compiled import cache_dir
+    from feltool.engines.compiled.library import cache_dir
 
     _c_compiler()
     monkeypatch.setenv("FELTOOL_CACHE", str(tmp_path / "fresh"))
@@ -88,7 +90,7 @@ def test_compiled_backend_builds_and_loads_a_shared_library(tmp_path, monkeypatc
     maps = Path("/proc/self/maps")
     if maps.exists():  # Linux: the library is in this process's address space
         assert str(libs[0].resolve()) in maps.read_text()
-    compiled = exp.compiled_cycle()
+    compiled = compiled_engine(exp)
     assert all(f.class_name() == "External" for f in compiled.functions), \
         "not loaded from the library"
     ref = run_seed(load_experiment(STANDARD), 2, 12)
@@ -138,9 +140,10 @@ def test_compiled_backend_rejects_what_it_cannot_do(tmp_path):
 def test_compiled_runs_several_cycles_per_call_and_resumes_bit_identically(tmp_path, monkeypatch):
     """The compiled code runs CYCLES_PER_CALL cycles per call; stopping at a cycle that is not a
     multiple of it and resuming from the checkpoint gives the same rows and parameters."""
-    import feltool.checkpoint as experiment
-    from feltool.checkpoint import Checkpointer, Interrupted
-    from feltool.compiled import CYCLES_PER_CALL
+    import feltool.runs.checkpoint as experiment
+
+    from feltool.engines.compiled.library import CYCLES_PER_CALL
+    from feltool.runs.checkpoint import Checkpointer, Interrupted
 
     exp = load_experiment(STANDARD, ["backend=compiled"])
     ref = run_seed(exp, 0, 30)

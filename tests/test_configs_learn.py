@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import pytest
 
-from feltool.experiment import load_experiment, run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS
 

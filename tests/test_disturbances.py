@@ -7,9 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from feltool.disturbances import disturbed_loop, scaled_model
-from feltool.experiment import load_experiment
-from feltool.ilc import cycle_runner, lifted_jacobian
+from feltool.engines.disturbed import disturbed_loop
+from feltool.engines.ilc import cycle_runner
+from feltool.learning.ilc import lifted_jacobian
+from feltool.plant.disturbances import scaled_model
+from feltool.runs.experiments import load_experiment
 
 from .conftest import CONFIGS
 
@@ -159,13 +161,13 @@ def test_model_error_scales_the_plant_by_the_scaling_laws_and_leaves_the_model()
     assert sum(float(i.mass) for i in scaled.inertias) == 2.0 * sum(masses)
 
 
-# -- the physical walker (feltool.disturbances.WalkerDisturbance) -------------------------------
+# -- the physical walker (feltool.plant.disturbances.WalkerDisturbance) -------------------------------
 FIVE_LINK = CONFIGS / "gaits" / "five_link_walker.yaml"
 
 
 def _walker_cycle(sets: list[str], seed: int = 0):
     """One cycle of the five-link walker through its cycle runner: (exp, run, outcome, log)."""
-    from feltool.seed import _cycle_runner
+    from feltool.runs.seed import _cycle_runner
 
     exp = load_experiment(FIVE_LINK, ["walking.poincare=false", *sets])
     theta = exp.initial_parameters(seed)
@@ -182,7 +184,7 @@ def test_walker_learner_sees_the_noisy_measurements_and_the_plant_the_true_state
     measurements (angles and rates with noise, the base from the stance leg's kinematics); the
     plant moves on its true state under the torques it received. ``walking.phase: touchdown``
     (one cycle), so that the references do not depend on the measured state."""
-    from feltool.python_engine import error_torques, motor_step
+    from feltool.engines.python import error_torques, motor_step
 
     exp, run, out, log = _walker_cycle(["walking.phase=touchdown",
                                         "disturbances.measurement_noise.q=0.001",
@@ -261,8 +263,8 @@ def test_walker_delay_and_torque_noise_reach_the_motors():
 
 
 def test_walker_model_error_scales_the_feet_and_stands_the_plant_on_its_foot():
-    from feltool.disturbances import disturbed_plant
-    from feltool.ilc_walker import on_ground
+    from feltool.engines.disturbed import disturbed_plant
+    from feltool.engines.ilc_walker import on_ground
 
     exp, run, out, log = _walker_cycle(["disturbances.model_error.length_scale=1.2"])
     plant = disturbed_plant(exp)

@@ -8,7 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from feltool.experiment import load_experiment, run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS
 

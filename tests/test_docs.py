@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import re
 
-from feltool.docgen import render
+from feltool.config.docgen import render
 
 from .conftest import ROOT
 
 
 def test_configuration_reference_is_in_sync_with_the_schema():
     committed = (ROOT / "docs" / "configuration.md").read_text()
-    assert committed == render(), "run: python -m feltool.docgen docs/configuration.md"
+    assert committed == render(), "run: python -m feltool.config.docgen docs/configuration.md"
 
 
 def test_readme_quick_start_is_make_run_and_make_test():

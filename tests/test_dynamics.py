@@ -6,8 +6,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.dynamics import make_dynamics
-from feltool.robot import load_robot
+from feltool.dynamics.interface import make_dynamics
+from feltool.robot.robot import load_robot
 
 # Table A.1 and A.2: (m, l, l_g) of both links.
 ARMS = {"two_link_arm": (1.0, 1.0, 0.5), "two_link_human_arm": (2.0, 0.5, 0.25)}

@@ -8,7 +8,8 @@ import csv
 import numpy as np
 import pytest
 
-from feltool.experiment import load_experiment, run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS, feltool
 
@@ -30,7 +31,7 @@ def _rows_equal(ref, comp, rtol=1e-8):
 
 def test_backend_auto_compiles_every_shipped_config():
     """No shipped config is refused by the compiled engine: backend auto picks it for each."""
-    from feltool.compiled import c_compiler
+    from feltool.engines.compiled.library import c_compiler
 
     if c_compiler() is None:
         pytest.skip("no C compiler (cc or gcc) on PATH: install gcc")
@@ -44,7 +45,7 @@ def test_every_shipped_config_runs_compiled_with_the_python_engines_metrics(path
     """Three cycles of seed 0 on the compiled engine equal the Python engine's metrics.csv
     rows to 1e-8 (the walkers' contact metrics and touchdowns included; the Poincare
     analysis after the run, Python either way, is left out)."""
-    from feltool.compiled import c_compiler
+    from feltool.engines.compiled.library import c_compiler
 
     if c_compiler() is None:
         pytest.skip("no C compiler (cc or gcc) on PATH: install gcc")

@@ -6,11 +6,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.config import EventConfig
+from feltool.config.events import EventConfig
 from feltool.errors import ConfigError
-from feltool.events import changed_model
-from feltool.experiment import load_experiment, run_seed
-from feltool.robot import load_robot
+from feltool.plant.events import changed_model
+from feltool.robot.robot import load_robot
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from feltool.experiment import load_experiment, run_seed
-from feltool.fel import feedforward
+from feltool.learning.fel import feedforward
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS
 

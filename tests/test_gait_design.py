@@ -17,9 +17,9 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import fsolve
 
-from feltool.gait_design import GROUPS, GaitDesignError, GaitSpec, design_gait
-from feltool.robot import load_robot
-from feltool.walker_model import FootSpec, build_walker_model
+from feltool.gait.design import GROUPS, GaitDesignError, GaitSpec, design_gait
+from feltool.robot.robot import load_robot
+from feltool.walking.model import FootSpec, build_walker_model
 
 from .conftest import other_walker_urdf
 
@@ -222,7 +222,7 @@ def test_infeasible_step_names_the_violated_constraint_group():
 # --- the demos it writes ---------------------------------------------------------------------
 
 def test_samples_demo_is_exact_for_a_cubic_with_linear_acceleration():
-    from feltool.rmp import samples_demo
+    from feltool.motion.rmp import samples_demo
 
     T, knots = 0.8, np.linspace(0.0, 0.8, 9)
     t = np.linspace(0.0, T, 101, endpoint=False)
@@ -239,8 +239,8 @@ def test_samples_demo_is_exact_for_a_cubic_with_linear_acceleration():
 
 
 def test_samples_demo_fits_the_rmp_as_the_same_sine_does():
-    from feltool.config import read_yaml
-    from feltool.experiment import build_experiment, resolve_config_path
+    from feltool.config.files import read_yaml
+    from feltool.runs.experiments import build_experiment, resolve_config_path
 
     raw = read_yaml(resolve_config_path("two_link_standard"))
     sine = build_experiment(raw)
@@ -261,7 +261,7 @@ def test_samples_demo_fits_the_rmp_as_the_same_sine_does():
 def test_cli_writes_a_gait_config_and_fails_cleanly(tmp_path, capsys):
     import yaml
 
-    from feltool.cli import main
+    from feltool.cli.main import main
 
     out = tmp_path / "gait.yaml"
     assert main(["gait", "configs/gaits/compass_gait.yaml", "--step-length", "0.4", "--knots",
@@ -292,7 +292,7 @@ def test_cli_writes_a_gait_config_and_fails_cleanly(tmp_path, capsys):
 def test_a_walker_never_seen_gets_a_gait_from_its_config_alone(tmp_path):
     """A torso-rooted five-link walker with other masses and lengths and continuous joints,
     feet given as link + offset: the designer needs nothing but the config."""
-    from feltool.gait_config import gait_spec, walker_from_raw
+    from feltool.gait.config import gait_spec, walker_from_raw
 
     (tmp_path / "other_walker.urdf").write_text(other_walker_urdf())
     raw = {"robot": "other_walker.urdf", "gravity": 9.81, "period_s": 0.55,

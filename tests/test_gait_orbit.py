@@ -13,11 +13,11 @@ import pinocchio as pin
 import pytest
 from scipy.integrate import solve_ivp
 
-from feltool.config import read_yaml
-from feltool.experiment import build_experiment
-from feltool.gait_config import gait_config, gait_spec, walker_from_raw
-from feltool.gait_design import design_gait
-from feltool.gait_orbit import GaitNotWalking, close_on_orbit, verify_design
+from feltool.config.files import read_yaml
+from feltool.gait.config import gait_config, gait_spec, walker_from_raw
+from feltool.gait.design import design_gait
+from feltool.gait.orbit import GaitNotWalking, close_on_orbit, verify_design
+from feltool.runs.experiments import build_experiment
 
 from .conftest import other_walker_urdf
 
@@ -156,7 +156,7 @@ def test_a_design_that_does_not_walk_is_refused(tmp_path):
 def test_cli_verifies_closes_and_refuses(tmp_path, capsys):
     import yaml
 
-    from feltool.cli import main
+    from feltool.cli.main import main
 
     out, html = tmp_path / "gait.yaml", tmp_path / "walk.html"
     assert main(["gait", str(compass_file(tmp_path)), "--step-length", "0.4", "--knots", "24",
@@ -190,7 +190,7 @@ def test_a_walker_never_seen_gets_a_walking_gait_from_its_config_alone(tmp_path,
     angles), and `feltool run` walks it with zero feedback."""
     import yaml
 
-    from feltool.cli import main
+    from feltool.cli.main import main
 
     (tmp_path / "other_walker.urdf").write_text(other_walker_urdf())
     foot = {"offset": [0, 0, -0.45]}

@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from feltool.engines.ilc import cycle_runner
 from feltool.errors import ConfigError
-from feltool.experiment import build_experiment, load_experiment, run_seed
-from feltool.ilc import cycle_runner, lifted_jacobian, q_filter
+from feltool.learning.ilc import lifted_jacobian, q_filter
+from feltool.runs.experiments import build_experiment, load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS
 
@@ -175,7 +177,7 @@ def test_ilc_learners_refuse_what_they_cannot_do():
     ["learning.update=gradient", "disturbances.input_delay_steps=1"],
 ])
 def test_resume_continues_the_learned_sequence_and_the_noise_bit_identically(tmp_path, sets):
-    from feltool.checkpoint import Checkpointer
+    from feltool.runs.checkpoint import Checkpointer
 
     exp = load_experiment(STANDARD, sets)
     whole = run_seed(exp, 3, cycles=12)
@@ -192,7 +194,7 @@ def test_lifted_jacobian_of_a_frame_angle_law_matches_finite_differences():
     """The UR5 holds its tool axis level (a frame angle, whose torque acts on every joint that
     moves the frame): the lifted model's feedback derivatives come from differences of the law."""
     exp = load_experiment(CONFIGS / "ur5_wrist_level.yaml", ["learning.update=ilc_norm_optimal"])
-    from feltool.ilc import channels
+    from feltool.engines.ilc import channels
 
     inputs, outputs = channels(exp)
     assert len(inputs) == 3  # the frame torque reaches shoulder, elbow and wrist

@@ -9,10 +9,10 @@ import copy
 import numpy as np
 import pytest
 
+from feltool.engines.ilc_walker import lifted_model, motor_error, orbit_cycle, phase_error
 from feltool.errors import ConfigError
-from feltool.experiment import load_experiment
-from feltool.ilc_walker import lifted_model, motor_error, orbit_cycle, phase_error
-from feltool.seed import run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS
 
@@ -69,7 +69,7 @@ def test_the_linearized_step_is_the_loops_own_step():
     """OrbitStep, the control step the lifted model differentiates, reproduces PhysicalLoop's
     cycle step by step: on the orbit, and on a perturbed cycle whose touchdowns come early and
     whose hip saturates at its 150 N m once (seed 0)."""
-    from feltool.ilc_walker import OrbitStep, orbit_steps
+    from feltool.engines.ilc_walker import OrbitStep, orbit_steps
 
     exp = load_experiment(FIVE_LINK, QUIET)
     for theta in (exp.theta_demo, exp.initial_parameters(0)):
@@ -133,7 +133,7 @@ def test_ilc_and_disturbances_still_refuse_the_pinned_walker():
 
 
 def test_walker_resume_continues_the_sequence_and_the_noise_bit_identically(tmp_path):
-    from feltool.checkpoint import Checkpointer
+    from feltool.runs.checkpoint import Checkpointer
 
     exp = load_experiment(FIVE_LINK, QUIET + ["learning.update=ilc_p",
                                               "disturbances.measurement_noise.v=0.001",

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from feltool.cli import main
+from feltool.cli.main import main
 
 from .conftest import ROOT, feltool
 
@@ -82,9 +82,9 @@ def test_targets_at_a_pose_are_the_arm_s_link_angles(capsys):
 
 def test_a_frame_target_from_inspect_holds_its_value_in_a_config(tmp_path):
     """Pasted into a config, inspect's frame target measures what inspect said it measures."""
-    from feltool.control import FrameAngle
-    from feltool.inspection import describe, parse_pose
-    from feltool.robot import load_robot
+    from feltool.robot.frames import FrameAngle
+    from feltool.robot.inspection import describe, parse_pose
+    from feltool.robot.robot import load_robot
 
     ur5 = load_robot("example-robot-data:ur5")
     q = parse_pose(ur5, "shoulder_lift_joint=-1.1,elbow_joint=0.9,wrist_1_joint=0.4")
@@ -136,9 +136,10 @@ def test_the_skeleton_of_a_lenient_urdf_at_a_pose_passes_check(tmp_path, capsys)
 def test_the_skeleton_learns(robot):
     """As suggested, over 20 cycles on seeds 0 and 1 (fixed before looking): the error feedback
     falls below 20 % of the first cycle's (measured 11-13 %, 1.5 %, 2-3.4 %; docs/own_robot.md)."""
-    from feltool.experiment import build_experiment, run_seed
-    from feltool.inspection import config_skeleton
-    from feltool.robot import load_robot
+    from feltool.robot.inspection import config_skeleton
+    from feltool.robot.robot import load_robot
+    from feltool.runs.experiments import build_experiment
+    from feltool.runs.seed import run_seed
 
     exp = build_experiment(yaml.safe_load(config_skeleton(load_robot(robot))))
     for seed in (0, 1):

@@ -6,7 +6,8 @@ import json
 
 import numpy as np
 
-from feltool.experiment import load_experiment, run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS, ROOT, feltool
 

@@ -7,12 +7,18 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.checkpoint import Checkpointer, Interrupted, request_stop, reset_stop
 from feltool.errors import ConfigError
-from feltool.experiment import load_experiment, run_seed
-from feltool.model_fel import PhaseBasisFeatures, RegressorFeatures, identifiability, inertial_parameters
-from feltool.robot import load_robot
-from feltool.rundir import write_metrics
+from feltool.learning.model import (
+    PhaseBasisFeatures,
+    RegressorFeatures,
+    identifiability,
+    inertial_parameters,
+)
+from feltool.robot.robot import load_robot
+from feltool.runs.checkpoint import Checkpointer, Interrupted, request_stop, reset_stop
+from feltool.runs.experiments import load_experiment
+from feltool.runs.rundir import write_metrics
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS, ROOT
 

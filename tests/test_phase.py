@@ -15,10 +15,11 @@ import pytest
 from scipy.integrate import quad, solve_ivp
 
 from feltool.errors import ConfigError
-from feltool.experiment import build_experiment, load_experiment, run_seed
-from feltool.phase import AdaptivePhase, ClockPhase
-from feltool.rmp import PrimitiveSet, RhythmicPrimitive
-from feltool.rundir import write_metrics
+from feltool.motion.phase import AdaptivePhase, ClockPhase
+from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive
+from feltool.runs.experiments import build_experiment, load_experiment
+from feltool.runs.rundir import write_metrics
+from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS, ROOT, feltool
 
@@ -331,15 +332,16 @@ def test_an_arm_follows_a_rhythm_of_unknown_frequency():
 def test_the_oscillator_input_is_the_named_joint_or_frame_height():
     """The measured input: a joint's angle, or a frame's height, here the arm's tip at
     z = sin q1 + sin(q1 + q2) (1 m links, angles from the horizontal: the URDF's comment)."""
-    from feltool.motion import _input_signal
+    from feltool.motion.motion import oscillator_input
 
     q = np.array([0.3, 0.9])
     tip = load_experiment(STANDARD, ["primitives.phase=adaptive",
                                      "primitives.oscillator={input: {frame: tip}}"])
-    assert _input_signal(tip)(q, 0.0) == pytest.approx(np.sin(0.3) + np.sin(1.2), abs=1e-12)
+    tip_height = oscillator_input(tip.config, tip.joints, tip.robot.model)
+    assert tip_height(q, 0.0) == pytest.approx(np.sin(0.3) + np.sin(1.2), abs=1e-12)
     joint = load_experiment(STANDARD, ["primitives.phase=adaptive",
                                        "primitives.oscillator={input: {joint: elbow}}"])
-    assert _input_signal(joint)(q, 0.0) == 0.9
+    assert oscillator_input(joint.config, joint.joints, joint.robot.model)(q, 0.0) == 0.9
     with pytest.raises(ConfigError, match="primitives.oscillator.input.frame"):
         load_experiment(STANDARD, ["primitives.phase=adaptive",
                                    "primitives.oscillator={input: {frame: nose}}"])
@@ -360,7 +362,7 @@ def test_a_positions_only_demo_fits_to_1e_5_rad_at_40_basis_functions(per_period
     their Fourier series: the spectral derivatives equal the analytic ones, and the RMP with
     N = 40 fitted to them has a limit cycle within 1e-5 rad RMS of the demonstration
     (measured ~1e-15: the basis spans the two sines)."""
-    from feltool import spectral
+    from feltool.motion import spectral
 
     phi = TWO_PI * np.arange(per_period * periods) / per_period
     series = spectral.from_samples(two_sines(phi)[0], periods)
@@ -444,7 +446,7 @@ def test_a_resumed_seed_continues_its_phase_bit_identically(overrides, tmp_path)
     """Stopped after cycle 5 (a checkpoint) and continued to cycle 9, a seed gives the same
     metrics, bit for bit, as one run of 9 cycles: the clock (mid-change), the amplitude, the
     transient (alpha_z = 2 decays slowly) and the oscillator are in the checkpoint."""
-    from feltool.checkpoint import Checkpointer
+    from feltool.runs.checkpoint import Checkpointer
 
     exp = load_experiment(STANDARD, [*overrides, "joints.elbow.primitive={alpha_z: 2.0}"])
     whole = run_seed(exp, 0, 9).rows

@@ -15,11 +15,12 @@ import pinocchio as pin
 import pytest
 
 from feltool.bounds import parse_seeds
-from feltool.config import Strict, parse_config, read_yaml
+from feltool.config.base import Strict
+from feltool.config.files import parse_config, read_yaml
 from feltool.errors import ConfigError, InputError, RobotError
-from feltool.experiment import reduce_robot
-from feltool.physical import inertia_problem
-from feltool.robot import load_robot, load_urdf_string
+from feltool.experiment.assemble import reduce_robot
+from feltool.robot.physical import inertia_problem
+from feltool.robot.robot import load_robot, load_urdf_string
 
 from .conftest import CONFIGS, ROOT
 
@@ -105,8 +106,8 @@ def test_a_locked_continuous_joint_is_held_at_its_posture():
 def test_a_continuous_joint_is_an_angle_in_an_experiment(tmp_path):
     """A continuous elbow takes a role as one angle (no (cos, sin) pair): the standard arm with
     it learns exactly as with the revolute elbow, whose limits the run never reaches."""
-    from feltool.experiment import build_experiment
-    from feltool.seed import run_seed
+    from feltool.runs.experiments import build_experiment
+    from feltool.runs.seed import run_seed
 
     (tmp_path / "arm.urdf").write_text(ARM.replace('<joint name="elbow" type="revolute">',
                                                    '<joint name="elbow" type="continuous">'))
@@ -125,8 +126,8 @@ def test_a_continuous_joint_is_an_angle_in_an_experiment(tmp_path):
 def test_angle_coordinates_keep_a_walkers_dynamics(rng):
     """The five-link walker with continuous joints, on its planar base: as angles (nq == nv)
     its mass, inverse dynamics and frames equal those of Pinocchio's (cos, sin) model."""
-    from feltool.robot import with_angle_coordinates
-    from feltool.walker_model import with_planar_base
+    from feltool.robot.robot import with_angle_coordinates
+    from feltool.walking.model import with_planar_base
 
     text = (ROOT / "robots" / "five_link_walker.urdf").read_text()
     text = text.replace('type="revolute"', 'type="continuous"')
@@ -223,8 +224,8 @@ def test_seed_lists_are_distinct_sorted_and_counted_before_they_exist():
 _MEASURE = """
 import json, sys
 from pathlib import Path
-from feltool.experiment import load_experiment, run_seed
-from feltool.memory import estimate_bytes
+from feltool import load_experiment, run_seed
+from feltool.config.memory import estimate_bytes
 def hwm():
     line = next(x for x in Path("/proc/self/status").read_text().splitlines() if x.startswith("VmHWM"))
     return int(line.split()[1])

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from feltool.rundir import load_npz
+from feltool.runs.rundir import load_npz
 
 from .conftest import CONFIGS, feltool
 

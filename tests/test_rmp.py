@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from feltool.errors import InputError
-from feltool.rmp import RhythmicPrimitive, sine_demo
+from feltool.motion.rmp import RhythmicPrimitive, sine_demo
 
 
 def fitted_sine(n_basis=10, dt=0.01, period=1.0):
@@ -105,7 +105,7 @@ def test_a_period_needs_two_steps_but_not_a_whole_number_of_them():
 
 def _rmp_ode(prim: RhythmicPrimitive, theta: np.ndarray):
     """Eq. 2.1-2.2 as a first-order ODE in (phi, q, qdot), written out here from the thesis
-    (not from feltool.rmp's matrices): tau phi' = 1, tau^2 q'' = alpha_z (beta_z (g - q) - tau q')
+    (not from feltool.motion.rmp's matrices): tau phi' = 1, tau^2 q'' = alpha_z (beta_z (g - q) - tau q')
     + r psi(phi)^T w, psi_i = exp(h (cos(phi - c_i) - 1)), c_i = 2 pi i / N."""
     N, w, g = prim.n_basis, theta[:-1], theta[-1]
     tau, az, bz, h, r = prim.tau, prim.alpha_z, prim.beta_z, prim.width, prim.amplitude
@@ -125,7 +125,7 @@ def test_matrix_exponential_matches_scipy(scale, rng):
     once, and the RMP's critically damped matrix (a repeated eigenvalue)."""
     from scipy.linalg import expm as scipy_expm
 
-    from feltool.rmp import exp2
+    from feltool.motion.rmp import exp2
 
     times = np.array([0.0, 0.01, 0.37, 1.0])
     for _ in range(5):

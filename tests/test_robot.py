@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from feltool.errors import RobotError
-from feltool.robot import load_robot
+from feltool.robot.robot import load_robot
 
 from .conftest import ROOT
 
@@ -57,7 +57,7 @@ def test_unknown_joint_lists_the_robots_joints():
 
 
 def test_package_dirs_resolve_package_meshes_and_urdf_strings_load(tmp_path):
-    from feltool.robot import load_urdf_string
+    from feltool.robot.robot import load_urdf_string
 
     mesh_dir = tmp_path / "pkgs" / "my_robot" / "meshes"
     mesh_dir.mkdir(parents=True)

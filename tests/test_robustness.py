@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from feltool.robustness import SCENARIOS, overrides_for, points_to_run, reached
+from feltool.runs.robustness import SCENARIOS, overrides_for, points_to_run, reached
 
 from .conftest import feltool
 

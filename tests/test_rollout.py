@@ -260,9 +260,9 @@ def test_run_html_holds_first_and_last_cycle(html_run):
     page = (html_run / "rollout.html").read_text(encoding="utf-8")
     assert "first cycle (1), feedback" in page and "last cycle (40), feedback" in page
     assert "two_link_standard, seed 0" in page
-    from feltool.viewer import _viewer_js
+    from feltool.viewer.scene import viewer_js_source
 
-    ours = page.replace(_viewer_js(), "")  # meshcat's bundle names a default server it never calls
+    ours = page.replace(viewer_js_source(), "")  # meshcat's bundle names a default server it never calls
     assert "127.0.0.1" not in ours and "ws://" not in ours
 
 
@@ -356,8 +356,8 @@ def _non_loopback_ipv4() -> str | None:
 
 
 def test_web_port_is_not_reachable_on_a_non_loopback_address():
-    from feltool.robot import load_robot
-    from feltool.viewer import LiveViewer
+    from feltool.robot.robot import load_robot
+    from feltool.viewer.live import LiveViewer
 
     address = _non_loopback_ipv4()
     if address is None:
@@ -406,9 +406,9 @@ def test_example_robot_data_mesh_robot_with_locked_joints(tmp_path):
     pytest.importorskip("example_robot_data")
     import umsgpack
 
-    from feltool.experiment import load_experiment
-    from feltool.rollout import LiveStream
-    from feltool.viewer import LiveViewer
+    from feltool.runs.experiments import load_experiment
+    from feltool.viewer.live import LiveViewer
+    from feltool.viewer.rollout import LiveStream
 
     config = tmp_path / "ur5.yaml"
     config.write_text(UR5)
@@ -459,7 +459,7 @@ def test_panda_and_ur5_appear_with_their_meshes(browser, config, tmp_path):
     loaded from its Collada file (three.js's loader finds the triangles Pinocchio's loader
     found, to 0.1 %), the ghost Pinocchio's own triangles, and no box or cylinder stands in
     for a link."""
-    from feltool.experiment import load_experiment
+    from feltool.runs.experiments import load_experiment
 
     out = tmp_path / "run"
     res = feltool("run", config, "--seeds", "0", "--cycles", "1", "--html", "--out", str(out),

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from feltool.runstate import run_state
+from feltool.runs.runstate import run_state
 from tests.conftest import ROOT, feltool
 
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -235,7 +235,7 @@ def test_view_html_with_a_seed_names_the_file(finished, tmp_path):
 
 
 def test_every_command_and_option_has_help_and_an_example():
-    from feltool.cli import build_parser
+    from feltool.cli.main import build_parser
 
     parser = build_parser()
     commands = parser._subparsers._group_actions[0].choices

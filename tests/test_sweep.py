@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from feltool.sweep import grid_points, parse_grid, run_sweep
+from feltool.runs.sweep import grid_points, parse_grid, run_sweep
 
 from .conftest import CONFIGS, feltool
 

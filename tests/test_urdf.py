@@ -11,9 +11,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.cli import main
+from feltool.cli.main import main
 from feltool.errors import RobotError
-from feltool.robot import load_robot, load_urdf_string
+from feltool.robot.robot import load_robot, load_urdf_string
 
 from .conftest import ROOT
 
@@ -151,7 +151,8 @@ def test_the_dialects_together_are_the_physics_they_mean(rng):
 def test_a_lenient_urdf_runs_and_is_viewed(tmp_path):
     """The Drake-style file runs a cycle and draws (its visuals come from the same validated
     description Pinocchio built the model from)."""
-    from feltool.experiment import load_experiment, run_seed
+    from feltool.runs.experiments import load_experiment
+    from feltool.runs.seed import run_seed
 
     (tmp_path / "r.urdf").write_text(urdf(WORLD_JOINT, POINT_MASS, CART, NO_LIMIT))
     (tmp_path / "c.yaml").write_text(CONFIG.format(robot="r.urdf"))

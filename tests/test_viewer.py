@@ -21,8 +21,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.robot import load_robot
-from feltool.viewer import LiveViewer, ViewerError, _viewer_js, record_html
+from feltool.robot.robot import load_robot
+from feltool.viewer.html import record_html
+from feltool.viewer.live import LiveViewer
+from feltool.viewer.scene import ViewerError, viewer_js_source
 from tests.conftest import port_free, port_of
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -74,7 +76,7 @@ def test_record_html_is_self_contained(arm_html):
     assert page.startswith("<!DOCTYPE html>")
     assert "new MeshCat.Viewer" in page and "handle_command_bytearray" in page
     # meshcat's viewer bundle is inlined whole ...
-    bundle = _viewer_js()
+    bundle = viewer_js_source()
     assert len(bundle) > 100_000 and bundle in page
     # ... and around it nothing is loaded from elsewhere: no external scripts, styles, images,
     # frames, and no websocket to a meshcat server
@@ -262,8 +264,8 @@ def test_live_viewer_server_dies_with_its_parent(tmp_path):
     script = textwrap.dedent("""
         import sys, time, warnings
         warnings.simplefilter("ignore")
-        from feltool.robot import load_robot
-        from feltool.viewer import LiveViewer
+        from feltool.robot.robot import load_robot
+        from feltool.viewer.live import LiveViewer
         v = LiveViewer(load_robot("two_link_arm"), quiet=True)
         print(v.server_pid, v.url, flush=True)
         time.sleep(60)
@@ -333,7 +335,7 @@ def test_recording_renders_offline_in_chromium(arm_html, tmp_path):
 
 def test_record_html_all_primitive_shapes(arm, tmp_path):
     coal = pytest.importorskip("coal")
-    from feltool.robot import Robot
+    from feltool.robot.robot import Robot
 
     shapes = {"box": coal.Box(0.1, 0.2, 0.3), "sphere": coal.Sphere(0.1),
               "cylinder": coal.Cylinder(0.05, 0.4), "cone": coal.Cone(0.05, 0.2),

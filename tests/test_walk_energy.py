@@ -7,7 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.experiment import load_experiment
+from feltool.runs.experiments import load_experiment
 
 
 def energy(model, data, q, v) -> float:

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from feltool.experiment import load_experiment
-from feltool.seed import run_seed
+from feltool.runs.experiments import load_experiment
+from feltool.runs.seed import run_seed
 
 # config, learned joint, cycles, bound on last/first summed feedback (every seed; measured on
 # seeds 0, 1 at 8 cycles: 0.0033, 0.0096 / 0.056, 0.096 / 0.029, 0.038). The gaits' demos are
@@ -65,7 +65,8 @@ def test_inverse_dynamics_error_is_the_feedforwards_motor_error():
     """``error_estimate: inverse_dynamics``: with the motors applying u = A (tau_ff + u_fb),
     the estimate A (u_fb + M (a_r - a)) is exactly u* - A tau_ff, u* the motor torques that give
     the reference's acceleration a_r (found here by solving the contact dynamics for them)."""
-    from feltool.walking import ContactChecks, PhysicalWalker
+    from feltool.walking.checks import ContactChecks
+    from feltool.walking.physical import PhysicalWalker
     from tests.test_walking import five_link
 
     rng = np.random.default_rng(3)

@@ -8,12 +8,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from feltool.contact import Contact
-from feltool.control import FeedbackLaw
-from feltool.dynamics import make_dynamics
-from feltool.robot import load_robot, load_urdf_string
-from feltool.walker_model import FootSpec, build_walker_model
-from feltool.walking import ContactChecks, PhysicalLoop, PhysicalWalker
+from feltool.control.feedback import FeedbackLaw
+from feltool.dynamics.interface import make_dynamics
+from feltool.robot.robot import load_robot, load_urdf_string
+from feltool.walking.checks import ContactChecks
+from feltool.walking.contact import Contact
+from feltool.walking.model import FootSpec, build_walker_model
+from feltool.walking.physical import PhysicalLoop, PhysicalWalker
 
 FEET = {"left": FootSpec(frame="left_foot"), "right": FootSpec(frame="right_foot")}
 M_LEG, M_H, M_T, R, L = 15.0, 10.0, 40.0, 1.0, 1.0  # Table B.1
@@ -355,7 +356,7 @@ def physical_config(**walking):
 
 
 def test_physical_walker_config_builds():
-    from feltool.experiment import build_experiment
+    from feltool.runs.experiments import build_experiment
 
     exp = build_experiment(physical_config())
     assert exp.joints == ["base_x", "base_z", "base_pitch", "left_hip", "right_hip"]
@@ -372,7 +373,7 @@ def test_physical_walker_config_builds():
 ])
 def test_foot_not_at_the_end_of_its_leg_is_rejected(feet, where):
     from feltool.errors import ConfigError
-    from feltool.experiment import build_experiment
+    from feltool.runs.experiments import build_experiment
 
     with pytest.raises(ConfigError) as err:
         build_experiment(physical_config(feet=feet))
@@ -381,7 +382,7 @@ def test_foot_not_at_the_end_of_its_leg_is_rejected(feet, where):
 
 def test_pinned_walker_fields_are_rejected_on_a_physical_walker():
     from feltool.errors import ConfigError
-    from feltool.experiment import build_experiment
+    from feltool.runs.experiments import build_experiment
 
     with pytest.raises(ConfigError) as err:
         build_experiment(physical_config(swap=["left_hip", "right_hip"]))
@@ -391,9 +392,9 @@ def test_pinned_walker_fields_are_rejected_on_a_physical_walker():
 def test_lifting_foot_is_counted_as_not_walking_in_the_summary():
     """A stance foot that cannot push the demanded normal force stops the seed as not walking;
     summary and aggregate name the kind and count it."""
-    from feltool.experiment import build_experiment
-    from feltool.runner import aggregate
-    from feltool.seed import run_seed
+    from feltool.runs.experiments import build_experiment
+    from feltool.runs.runner import aggregate
+    from feltool.runs.seed import run_seed
 
     exp = build_experiment(physical_config(normal_force_min=5000.0))
     res = run_seed(exp, 0, cycles=2)
@@ -471,7 +472,7 @@ def test_follow_demo_gives_the_demonstration_itself():
     """A follow_demo joint's forward trajectory is its demonstration at the control rate (here
     the sine and its derivatives in closed form), not its RMP fit."""
     from feltool.errors import ConfigError
-    from feltool.experiment import build_experiment
+    from feltool.runs.experiments import build_experiment
 
     raw = physical_config()
     raw["joints"]["left_hip"]["follow_demo"] = True
@@ -528,8 +529,8 @@ def test_late_touchdown_holds_the_step_last_sample():
 def test_not_walking_before_the_first_sample_is_reported():
     """A cycle that stops before its first sample (here the mechanical phase of a desired
     centre of mass that does not move forward) is reported as not walking, no exception."""
-    from feltool.experiment import build_experiment
-    from feltool.seed import run_seed
+    from feltool.runs.experiments import build_experiment
+    from feltool.runs.seed import run_seed
 
     exp = build_experiment(physical_config(phase="mechanical"))
     res = run_seed(exp, 0, cycles=2)
@@ -543,7 +544,7 @@ def test_mechanical_phase_reference_acceleration_is_its_velocitys_rate():
     reference's acceleration then includes p' s_ddot, so it matches the finite difference of the
     reference's velocity along the walk: RMS 1.4 % of the accelerations' (without the term
     3.0 %; the rest is the samples' linear interpolation and the term's one-step lag)."""
-    from feltool.experiment import load_experiment
+    from feltool.runs.experiments import load_experiment
 
     exp = load_experiment("configs/gaits/five_link_walker.yaml", ["walking.poincare=false"])
     P, Pv, Pa = exp.primitives.desired(exp.initial_parameters(0))

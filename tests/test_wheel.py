@@ -22,8 +22,8 @@ def test_wheel_ships_robots_and_configs_and_loads_them(tmp_path):
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     # Run from a directory without the checkout, importing feltool from the unpacked wheel only.
-    code = ("import feltool, sys; from feltool.robot import load_robot; "
-            "from feltool.experiment import load_experiment; "
+    code = ("import feltool, sys; from feltool.robot.robot import load_robot; "
+            "from feltool import load_experiment; "
             "assert 'site' in feltool.__file__, feltool.__file__; "
             "print(load_robot('two_link_human_arm').total_mass); "
             "print(load_experiment('two_link_standard').config.name)")

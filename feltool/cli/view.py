@@ -1,0 +1,81 @@
+"""``feltool view``: replay a recorded run in meshcat, or write it as one HTML file."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import time
+from pathlib import Path
+
+from feltool.cli.common import subcommand
+
+
+def keep_viewing(viewer, run_dir: Path, seed: int | None, cycles: list[str], loops: int,
+                  timeout_s: float | None) -> None:
+    """Replay recorded cycles ``loops`` times (0: for ever), then keep the server up showing
+    the last pose; until Ctrl-C or ``timeout_s`` in [s] (0: return at once). An interrupt here
+    loses nothing: the run is already written."""
+    from feltool.viewer.rollout import replay
+
+    if timeout_s is not None and timeout_s <= 0:
+        return
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    until = "Ctrl-C" if timeout_s is None else f"Ctrl-C or {timeout_s:g} s"
+    try:  # announced inside: a Ctrl-C right after the line is the one the line asks for
+        print(f"feltool viewer: serving {viewer.url} until {until}", flush=True)
+        replay(viewer, run_dir, seed, cycles, loops=loops, timeout_s=timeout_s)
+        while deadline is None or time.monotonic() < deadline:
+            time.sleep(0.2 if deadline is None else min(0.2, deadline - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+    print("feltool viewer: stopped", flush=True)
+
+
+def exit_on_sigterm() -> None:
+    """Turn SIGTERM into SystemExit(143), so that ``finally`` blocks (the viewer's server
+    shutdown) run as they do on Ctrl-C."""
+    def handler(signum, frame):
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, handler)
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from feltool.viewer.rollout import load_rollouts, parse_cycles, run_robot, write_rollout_html
+
+    cycles = parse_cycles(args.cycles)
+    seed, _, _ = load_rollouts(args.run_dir, args.seed, cycles)  # bad input fails first
+    robot = run_robot(args.run_dir)
+    if args.html:
+        name = "rollout.html" if args.seed is None else f"rollout-seed{seed}.html"
+        print(write_rollout_html(robot, args.run_dir, seed, cycles,
+                                 path=args.run_dir / name))
+        return 0
+    from feltool.viewer.live import LiveViewer
+
+    exit_on_sigterm()
+    with LiveViewer(robot, zmq_url=args.zmq_url) as viewer:
+        keep_viewing(viewer, args.run_dir, seed, cycles, args.loops, args.view_timeout)
+    return 0
+
+
+def add_command(sub) -> None:
+    """Add ``feltool view`` to the subparsers ``sub``."""
+    p = subcommand(sub, "view", "replay a recorded run in meshcat (or write rollout.html)",
+             "  feltool view runs/arm                       # until Ctrl-C\n"
+             "  feltool view runs/arm --seed 3 --cycles last --loops 2 --view-timeout 30\n"
+             "  feltool view runs/arm --html --seed 3       # runs/arm/rollout-seed3.html")
+    p.add_argument("run_dir", type=Path, help="a complete run directory")
+    p.add_argument("--seed", type=int, help="seed to show (default: the first with traces)")
+    p.add_argument("--cycles", default="first,last",
+                   help="recorded cycles to show: first, last or first,last (default)")
+    p.add_argument("--html", action="store_true",
+                   help="write RUN_DIR/rollout.html (rollout-seedN.html with --seed) instead of "
+                   "starting a viewer")
+    p.add_argument("--zmq-url", metavar="URL", help="use this running meshcat-server")
+    p.add_argument("--loops", type=int, default=0, metavar="N",
+                   help="play the cycles N times, then keep showing the last pose "
+                   "(default 0: play until Ctrl-C)")
+    p.add_argument("--view-timeout", type=float, metavar="S",
+                   help="close the viewer after S seconds (default: on Ctrl-C)")
+    p.set_defaults(func=cmd_view)

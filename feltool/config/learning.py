@@ -1,0 +1,131 @@
+"""The ``learning:`` section: the error signal, the update (FEL, ILC, baseline), its rates,
+classic FEL of the model.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import (
+    Field,
+)
+
+from feltool.bounds import (
+    MAX_DAMPING,
+    MAX_RATE,
+    MAX_WIDTH,
+)
+from feltool.config.base import NonNegFloat, PositiveFloat, Strict
+
+
+class ModelLearningConfig(Strict):
+    """Classic (Kawato) feedback error learning of an inverse-model correction (eq. 2.8, 3.4):
+    u_ff = RNEA_model(q_d, qd_d, qdd_d) + S_m Phi(q_d, qd_d, qdd_d) theta_m, with the feedback of
+    the error joints S_m (default: every actuated joint) as the error signal."""
+
+    features: Literal["regressor", "phase_basis"] = Field("regressor", description="Features "
+        "Phi: regressor = Pinocchio's joint-torque regressor, so theta_m are corrections of the "
+        "10 inertial parameters per body [m, m c, I at the joint frame origin]; phase_basis = "
+        "normalised von Mises functions of the phase, one set per joint, theta_m in [N m].")
+    error: Literal["all_feedback", "tracking"] | list[str] = Field("all_feedback", description=""
+        "Error signal: all actuated feedback (Kawato's FEL), only the tracking joints' feedback "
+        "(leaves the stabilizing feedback to trajectory FEL when both run), or a list of joints. "
+        "The correction drives only these joints (docs/model_learning.md).")
+    basis: int = Field(20, ge=1, le=1000, description="Number of phase basis functions per "
+                       "joint (phase_basis only).")
+    width: PositiveFloat | None = Field(None, le=MAX_WIDTH, description="Width h of the phase basis [-] "
+                                        "(phase_basis only); default basis / 2.")
+    update: Literal["gradient", "gauss_newton"] = Field("gradient", description="gradient: "
+        "eq. 3.4, theta_m += rate * sum_k Phi_k^T e_k; gauss_newton: the Levenberg-Marquardt "
+        "step rate * (Phi^T Phi + lambda I)^-1 Phi^T e over the cycle (per_cycle only; fast "
+        "alone, but it interferes with trajectory FEL).")
+    step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
+        "cycle or after every control step (per_step: gradient only).")
+    rate: NonNegFloat = Field(le=MAX_RATE, description="Learning rate alpha_m (required; at "
+        f"most {MAX_RATE:g}; its unit depends on "
+        "the features): gradient: per sample and cycle, in [theta_m unit / (N m)^2] -- stable "
+        "below 2 / (largest eigenvalue of sum_k Phi_k^T Phi_k); gauss_newton: the fraction of the "
+        "Levenberg-Marquardt step [-]. See docs/model_learning.md.")
+    damping: PositiveFloat = Field(1.0e-6, le=MAX_DAMPING, description="Levenberg-Marquardt "
+                                   "damping, relative to the mean diagonal of Phi^T Phi [-]; "
+                                   "directions the motion does not excite are then left "
+                                   f"unchanged; at most {MAX_DAMPING:g}.")
+    jacobian: Literal["learned", "nominal"] = Field("learned", description="Inverse model whose "
+        "derivatives the trajectory learner's Jacobian uses when both learn: learned = the known "
+        "model plus the current correction (chain rule through Phi theta_m; regressor features "
+        "give RNEA with pi_model + theta_m; on the joints the correction drives), nominal = the "
+        "known model alone.")
+
+
+class Rates(Strict):
+    """Learning rates alpha of eq. 3.6, separate for weights and goal."""
+
+    weights: NonNegFloat = Field(0.15, le=MAX_RATE, description="Rate for the RMP weights "
+                                 "(gradient) or the fraction of the Levenberg-Marquardt step "
+                                 f"taken (gauss_newton); at most {MAX_RATE:g}.")
+    goal: NonNegFloat = Field(2.0e-5, le=MAX_RATE, description="Rate for the RMP goal (always "
+                              "gradient). The update sums over a cycle's samples, so rates "
+                              f"scale with rate_hz; at most {MAX_RATE:g}.")
+
+
+class LearningConfig(Strict):
+    """Feedback error learning of the RMP parameters (eq. 3.6)."""
+
+    error: Literal["stabilizing", "all_feedback"] | list[str] = Field(
+        "stabilizing", description="Error signal e: the stabilizing feedback (fully actuated "
+        "robots), all feedback (underactuated robots), or a list of joints whose feedback counts.")
+    update: Literal["gradient", "gauss_newton", "ilc_p", "ilc_norm_optimal", "feedback_only"] = \
+        Field("gradient", description="gradient: eq. 3.6; gauss_newton: a Levenberg-Marquardt "
+              "step on the weights (goal stays on gradient); ilc_p: P-type ILC of a per-sample "
+              "feedforward torque with a zero-phase Q filter; ilc_norm_optimal: norm-optimal ILC "
+              "on the lifted cycle model of the known model; feedback_only: no learning (the "
+              "baseline). The ILC settings are in `ilc` (docs/comparison.md).")
+    step: Literal["per_cycle", "per_step"] = Field("per_cycle", description="Update once per "
+        "cycle (the RMP is then reset onto its new limit cycle) or after every control step.")
+    rates: Rates = Field(default_factory=Rates, description="Learning rates.")
+    damping: PositiveFloat = Field(1.0e-2, le=MAX_DAMPING, description="Levenberg-Marquardt "
+                                   "damping, relative to the mean diagonal of J^T J [-]; at most "
+                                   f"{MAX_DAMPING:g}.")
+    sensitivity: Literal["exact", "finite_difference", "casadi"] = Field("exact", description=
+        "How d u_ff / d theta is computed: exact (RMP sensitivity x Pinocchio's RNEA "
+        "derivatives), the thesis's numerical differentiation, or CasADi's algorithmic "
+        "differentiation through the RMP and a symbolic RNEA.")
+    fd_epsilon: PositiveFloat = Field(1.0e-6, le=1.0, description="Finite-difference step, "
+                                      "relative to max(1, |theta_i|) [-]; at most 1.")
+    impact_window_s: NonNegFloat = Field(0.0, description="Walkers only: leave the error "
+        "signal's samples within this time after every impact out of the update (the impact's "
+        "velocity jump makes a feedback spike that no smooth RMP can remove) [s]; 0 = off.")
+    model: ModelLearningConfig | None = Field(None, description="Also learn an inverse-model "
+        "correction by classic FEL (docs/model_learning.md); default off.")
+    error_estimate: Literal["feedback", "inverse_dynamics"] = Field("feedback", description=
+        "Physical walkers: the feedforward's error is estimated by the feedback (eq. 3.6), or "
+        "by the feedback plus the inertial term M (a_r - a) of the reference's acceleration "
+        "against the walker's (inverse_dynamics: the feedforward's error itself, also when the "
+        "feedback's bandwidth, bounded by the torque limits, is below the gait's; "
+        "docs/biped.md).")
+    error_space: Literal["generalized", "motors"] = Field("generalized", description="Physical "
+        "walkers: the error signal and the feedforward's Jacobian in generalized forces "
+        "(generalized), or both mapped through the allocation onto the motors (motors: the "
+        "torques the motors apply, the part of the feedforward that acts; docs/biped.md).")
+
+
+class ILCConfig(Strict):
+    """Iterative learning control (learning.update ilc_p / ilc_norm_optimal): the learned
+    feedforward is a torque per sample of the cycle, added to the known model's torque along the
+    initial RMP (feltool.learning.ilc); on a physical walker a motor torque per RMP sample, added to the
+    allocated command (feltool.engines.ilc_walker)."""
+
+    gain: NonNegFloat = Field(1.0, description="ilc_p: learning gain L of "
+                              "u_{h+1} = Q(u_h + L e_h) [-] (error and input are torques).")
+    lead_steps: int = Field(0, ge=0, le=100_000, description="ilc_p: phase lead of the error "
+                            "in samples (u_h^k is corrected by e_h^{k+lead}) [-].")
+    cutoff_hz: PositiveFloat | None = Field(20.0, description="ilc_p: cutoff of the zero-phase "
+        "Butterworth Q filter in [Hz] (run forwards and backwards over the periodic cycle); "
+        "null: no filter.")
+    order: int = Field(2, ge=1, le=8, description="ilc_p: order of the Q filter's Butterworth "
+                       "low pass [-].")
+    weight_error: PositiveFloat = Field(1.0, description="ilc_norm_optimal: weight w_e of the "
+                                        "error norm ||e||^2 [1/(N m)^2].")
+    weight_change: PositiveFloat = Field(0.01, description="ilc_norm_optimal: weight w_u of "
+                                         "the input-change norm ||u_{h+1} - u_h||^2 "
+                                         "[1/(N m)^2].")

@@ -1,0 +1,350 @@
+r"""The physical walker's learning cycle as a CasADi graph (:class:`feltool.walking.physical.PhysicalLoop`
+compiled, with ``walking.phase: mechanical``).
+
+Each control step, as the Python engine does it:
+
+* the mechanical phase: the centre of mass's horizontal position over the stance foot located
+  in the step's desired values (a piecewise-linear inverse, as ``np.interp``), the forward and
+  reference trajectories interpolated there, with the phase's rate and acceleration;
+* the desired state completed by the stance foot's constraint (:meth:`PhysicalWalker.complete`),
+  relabelled in every second step; feedback; the wanted generalized force mapped onto the
+  motors in the constrained metric (:meth:`PhysicalWalker.allocation_matrix`), saturated or
+  counted against the effort limits; the inertial error term :math:`M(\ddot q_r - \ddot q)`;
+* the sub-steps: the stance contact's force and its checks, classical Runge-Kutta with the
+  stance foot held (KKT solves of :math:`M\ddot q + b = \tau + J_c^\top F`,
+  :math:`J_c\ddot q + \dot J_c\dot q = 0`), the swing foot's clearance; a touchdown located
+  inside the sub-step by bisection on the foot's height (to far below Brent's 1e-12 s), the
+  rigid impact (:math:`M(\dot q^+ - \dot q^-) = J^\top I`, :math:`J\dot q^+ = 0`), the
+  relabelling and the new stance foot put at the origin.
+
+A touchdown's branch and the steps after the cycle's last touchdown are conditional: the
+generated code runs only what the Python engine would. The steps are chained calls that read the
+cycle's trajectories in place (``mapaccum`` would copy them to every step). Whatever stops a
+cycle (a contact check, a fall, no touchdown) is reported by a code; the Python engine then
+reruns that cycle for its message and numbers (it is the seed's last). The update (eq. 3.6,
+Gauss-Newton in motor torques with the inverse-dynamics error estimate) uses the sensitivity row
+of the sample nearest each step's phase, as the Python engine does; its sums are accumulated in
+the step's state, step by step (a row picked by index per step, not a steps x samples
+assignment matrix after the cycle).
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from feltool.control.cycle import fel_update, wrap
+from feltool.control.ops import CASADI
+from feltool.engines.compiled.graph import (
+    cycle_stats,
+    desired_from_data,
+    layout,
+    split_params,
+)
+from feltool.engines.compiled.physical_step import Control, Kin, Step, stop_code
+
+#: Steps chained per block (the cycle is blocks of blocks: few call sites in the C code).
+BLOCK = 40
+
+
+def row_fields(nv: int) -> list[tuple[str, int]]:
+    """A control step's row of the trace: its fields in order, with their sizes."""
+    return [("valid", 1), ("q", nv), ("v", nv), ("qd", nv), ("r", nv), ("U", nv),
+            ("Urows", nv), ("Uerr", nv), ("err", 1), ("work", 1), ("impact", 1), ("length", 1)]
+
+
+def unpack(vec, fields) -> dict:
+    """``vec``'s consecutive rows (a column's entries, a matrix's rows) named by ``fields``
+    (``(name, size)`` pairs)."""
+    out, pos = {}, 0
+    for name, size in fields:
+        out[name] = vec[pos:pos + size, :]
+        pos += size
+    return out
+
+
+class PhysicalGraph:
+    """The physical walker's cycle functions (see the module docstring)."""
+
+    def __init__(self, exp):
+        self.exp = exp
+        self.kin = Kin(exp)
+        self.stp = Step(exp, self.kin)
+        self.ctl = Control(exp, self.kin, self.stp)
+        stp = self.stp
+        self.nv, self.k, self.n = stp.nv, stp.k, stp.n
+        self.n_max = BLOCK * int(np.ceil(3 * self.n / BLOCK))
+        self.lay = layout(exp)
+        self.sizes = stp.sizes()
+        # the FEL sums of eq. 3.6, accumulated step by step (grad; Gauss-Newton: its matrix)
+        PL = self.lay.n_learned
+        self.gauss_newton = exp.learner.update == "gauss_newton"
+        self.sizes.update(grad=PL, hess=PL * PL if self.gauss_newton else 0)
+        self.n_state = sum(self.sizes.values())
+        self.row_size = sum(sz for _, sz in row_fields(self.nv))
+
+    def step_function(self) -> ca.Function:
+        """One control step (MX) ``(S, consts, kp, kd, targets) -> (S', row)``, run only while
+        the cycle runs (the state and an empty row otherwise)."""
+        stp, W, nv = self.stp, self.kin.W, self.nv
+        S = ca.MX.sym("S", self.n_state)
+        consts = ca.MX.sym("consts", self.ctl.consts_size())
+        kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
+        srows = ca.MX.sym("srows", self.srows_size())
+        st = unpack(S, self.sizes.items())
+        running = ca.logic_and(st["stop"] == 0, st["done"] == 0)
+        (tau, u, over, qd, vd, ad, r, U, Urows, Uerr, A, inert, phase_acc_next, jj, label,
+         err, a1, F) = self.ctl.function()(st["q"], st["v"], st["phase_acc"], st["n_imp"], consts,
+                                    kp, kd, targets)
+        hits = st["hits"] + over
+        stop = st["stop"]
+        if W.checks.torques == "report":
+            stop = ca.if_else(ca.logic_and(stop == 0, ca.sum1(over) > 0), stop_code("torque"), stop)
+        motors = [int(i) for i in W.motor_v]
+        work = ca.sum1(ca.fabs(u * st["v"][motors])) * stp.dt
+        q, v = st["q"], st["v"]
+        checks = ca.vertcat(stop, st["min_fn"], st["max_ratio"], st["min_clear"])
+        impact, length, ratio, lost = ca.MX(0), ca.MX(0), ca.MX(-np.inf), ca.MX(0)
+        h = stp.dt / stp.substeps
+        sub, td = self.stp.substep(), self.stp.touchdown()
+        branch_fn = self._touchdown_switch(td)
+        for i_sub in range(stp.substeps):
+            if i_sub:
+                a1, F = self.kin.stance(q, v, tau)
+            q1, v1, checks1, landing, anchor, _ = sub(q, v, tau, h, checks, a1, F)
+            land = ca.logic_and(landing, impact == 0)
+            # the touchdown's branch is evaluated only when landing
+            branch = branch_fn(land, q, v, tau, h, anchor, checks, q1, v1, checks1)
+            frozen = impact > 0  # after a touchdown the control step ends
+            q = ca.if_else(frozen, q, branch[:nv])
+            v = ca.if_else(frozen, v, branch[nv:2 * nv])
+            checks = ca.if_else(frozen, checks, branch[2 * nv:2 * nv + 4])
+            ratio = ca.if_else(land, branch[2 * nv + 4], ratio)
+            lost = ca.if_else(land, branch[2 * nv + 5], lost)
+            length = ca.if_else(land, branch[2 * nv + 6], length)
+            impact = ca.fmax(impact, land)
+        n_imp = st["n_imp"] + impact
+        stop = checks[0]
+        finite = (ca.sum1(ca.fabs(q)) + ca.sum1(ca.fabs(v))) < np.inf
+        fell = 1 - finite
+        if W.fall_row is not None and np.isfinite(W.fall_max):
+            fell = ca.fmax(fell, ca.fabs(ca.dot(ca.DM(W.fall_row), q)) > W.fall_max)
+        stop = ca.if_else(ca.logic_and(stop == 0, fell), stop_code("fall"), stop)
+        new = {"q": q, "v": v, "n_imp": n_imp,
+               "phase_acc": ca.if_else(impact, 0.0, phase_acc_next), "stop": stop,
+               "done": n_imp >= stp.spc, "min_fn": checks[1], "max_ratio": checks[2],
+               "min_clear": checks[3],
+               "max_imp_ratio": ca.if_else(impact, ca.fmax(st["max_imp_ratio"], ratio),
+                                           st["max_imp_ratio"]),
+               "energy": st["energy"] + impact * lost, "length": st["length"] + impact * length,
+               "hits": hits}
+        new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, Uerr + inert
+                                                  if self.inverse_dynamics else Uerr, jj, srows)
+        S_new = ca.vertcat(*[new[name] for name in self.sizes])
+        row = ca.vertcat(1, st["q"], st["v"], qd, r, U, Urows, Uerr, err, work, impact,
+                         impact * length)  # (row_fields)
+        args = [S, consts, kp, kd, targets, srows]
+        body = ca.Function("phys_body", args, [S_new, row])
+        idle = ca.Function("phys_idle", args, [S, ca.DM.zeros(self.row_size)])
+        switch = ca.Function.conditional("phys_switch", [idle], body)  # 0: idle, else: run
+        S_out, row_out = switch(running, *args)
+        return ca.Function("phys_step", args, [S_out, row_out])
+
+    @property
+    def inverse_dynamics(self) -> bool:
+        return self.exp.config.learning.error_estimate == "inverse_dynamics"
+
+    def srows_size(self) -> int:
+        """The learned joints' sensitivity rows, row-major per joint and derivative order."""
+        return 3 * self.n * self.lay.n_learned
+
+    def _fel_sums(self, st, qd, vd, ad, label, A, E, jj, srows):
+        """The step's terms of eq. 3.6's sums added to the state's: with the sensitivity row
+        of the step's sample ``jj`` (:math:`T_l`, 3 x P_l) and the step's derivative columns
+        ``s = d^T e``, ``g = d_a^T d_b`` (:func:`_fel_step`): grad_l += T_l^T s_l,
+        hess_(l1, l2) += T_l1^T G_(l1, l2) T_l2."""
+        blocks, n = self.lay.blocks, self.n
+        L = len(blocks)
+        if not L:
+            return st["grad"], st["hess"]
+        s_vals, g_vals = _fel_step(self.kin, self.lay, self.exp, self.k)(qd, vd, ad, label, A, E)
+        j = ca.fmin(ca.fmax(jj, 0), n - 1)
+        T, grads, off = [], [], 0
+        for l, (_, P) in enumerate(blocks):
+            rows = [srows[off + c * n * P + j * P + ca.DM(np.arange(P))] for c in range(3)]
+            T.append(ca.horzcat(*rows))  # P x 3
+            grads.append(ca.mtimes(T[l], ca.vertcat(*[s_vals[c * L + l] for c in range(3)])))
+            off += 3 * n * P
+        grad = st["grad"] + ca.vertcat(*grads)
+        if not self.gauss_newton:
+            return grad, st["hess"]
+        D3 = 3 * L
+        blocks_h = [[ca.mtimes(T[l1], ca.mtimes(
+            ca.reshape(ca.vertcat(*[g_vals[(a * L + l1) * D3 + (b * L + l2)]
+                                    for b in range(3) for a in range(3)]), 3, 3), T[l2].T))
+            for l2 in range(L)] for l1 in range(L)]
+        return grad, st["hess"] + ca.vec(ca.blockcat(blocks_h))
+
+    def _touchdown_switch(self, td: ca.Function) -> ca.Function:
+        """``(land, q, v, tau, h, anchor, checks, q1, v1, checks1) -> branch``: the
+        touchdown's state, checks, impulse ratio, energy lost and step length when ``land``,
+        else the sub-step's state and checks (only the chosen branch is evaluated)."""
+        nv = self.nv
+        args = [ca.MX.sym(n, sz) for n, sz in (("q", nv), ("v", nv), ("tau", nv), ("h", 1),
+                                               ("anchor", 2), ("checks", 4), ("q1", nv),
+                                               ("v1", nv), ("checks1", 4))]
+        q, v, tau, h, anchor, checks, q1, v1, checks1 = args
+        no = ca.Function("no_touchdown", args, [ca.vertcat(q1, v1, checks1, -np.inf, 0, 0)])
+        qn, vn, checks_td, ratio, lost, length = td(q, v, tau, h, anchor, checks1)
+        yes = ca.Function("touchdown_branch", args,
+                          [ca.vertcat(qn, vn, checks_td, ratio, lost, length)])
+        switch = ca.Function.conditional("touchdown_switch", [no], yes)
+        land = ca.MX.sym("land")
+        return ca.Function("touchdown_or_not", [land, *args], [switch(land, *args)])
+
+    def steps_function(self) -> ca.Function:
+        """All the cycle's steps: blocks of :data:`BLOCK` chained steps, chained (few call
+        sites; the constants read in place)."""
+        one = self.step_function()
+        S = ca.MX.sym("S", self.n_state)
+        consts = ca.MX.sym("consts", self.ctl.consts_size())
+        kp, kd, targets = (ca.MX.sym(s, self.nv) for s in ("kp", "kd", "targets"))
+        srows = ca.MX.sym("srows", self.srows_size())
+        args = [consts, kp, kd, targets, srows]
+        s, rows = S, []
+        for _ in range(BLOCK):
+            s, row = one(s, *args)
+            rows.append(row)
+        block = ca.Function("phys_block", [S, *args], [s, ca.horzcat(*rows)])
+        s, rows = S, []
+        for _ in range(self.n_max // BLOCK):
+            s, r = block(s, *args)
+            rows.append(r)
+        return ca.Function("phys_steps", [S, *args], [s, ca.horzcat(*rows)])
+
+
+#: The contact metrics of a cycle in the graph's stats, in order (:func:`feltool.runs.seed.
+#: contact_metrics`).
+CONTACT = ("min_normal_force", "max_friction_ratio", "min_clearance", "max_impulse_ratio",
+           "impact_energy_lost", "step_length", "distance", "steps", "duration", "work",
+           "stabilized_rms")
+
+
+def physical_cycle_function(exp, plant=None, full: bool = False,
+                            name: str = "phys_cycle") -> ca.Function:
+    """The physical walker's cycle ``(state, data, params) -> (state', stats)`` (the arm's
+    data with the referenced joints' samples appended); ``stats``: the arm's, then the stop
+    code, the steps run, the touchdowns' steps and lengths, and :data:`CONTACT`. With
+    ``full``: the rows of every step (:func:`row_fields`)."""
+    g = PhysicalGraph(exp)
+    lay = g.lay
+    kin, stp, W, law, learner = g.kin, g.stp, g.kin.W, exp.law, exp.learner
+    nv, n, k, L, PL = g.nv, g.n, g.k, len(lay.blocks), lay.n_learned
+    ns, spc = stp.ns, stp.spc
+    refs = stp.refs
+    state = ca.MX.sym("state", lay.n_state)
+    data = ca.MX.sym("data", lay.n_data + 3 * n * len(refs))
+    params = ca.MX.sym("params", lay.n_params)
+    theta, x0 = state[:PL], state[PL:]
+    kp, kd, targets, rates, damping = split_params(lay, params)[:5]
+    sens, (P, Pv, Pa), _, _ = desired_from_data(lay, theta, data)
+    R = [P, Pv, Pa]
+    for j, i in enumerate(refs):  # a referenced joint's feedback and phase follow samples
+        for c in range(3):
+            start = lay.n_data + (3 * j + c) * n
+            R[c] = ca.vertcat(R[c][:i, :], data[start:start + n].T, R[c][i + 1:, :])
+    # the mechanical phase's grids: the reference's centre of mass over each walk step
+    p_, pv_, pa_, lab_ = (ca.SX.sym(s, nv if s != "l" else 1) for s in ("p", "v", "a", "l"))
+    qd_, vd_, ad_ = kin.complete(*kin.labelled(p_, pv_, pa_, lab_))
+    grid = ca.Function("grid", [p_, pv_, pa_, lab_], [ca.vertcat(*kin.com_x(qd_, vd_, ad_))])
+    labels = ca.DM([(i // ns) % 2 for i in range(spc * ns)]).T
+    G = grid.map(spc * ns, "serial")(R[0][:, :spc * ns], R[1][:, :spc * ns],
+                                      R[2][:, :spc * ns], labels)
+    phase_bad = ca.MX(0)
+    for si in range(spc):
+        xs = G[0, si * ns:(si + 1) * ns]
+        phase_bad = ca.fmax(phase_bad, ca.mmin(xs[:, 1:] - xs[:, :ns - 1]) <= 0)
+    pad = ca.DM.zeros(1, n - spc * ns)
+    consts = ca.vertcat(*[ca.vec(M) for M in (P, Pv, Pa, *R)],
+                        *[ca.horzcat(G[c, :], pad).T for c in range(3)])
+    S0 = ca.vertcat(x0, 0, 0, ca.if_else(phase_bad, stop_code("phase"), 0), 0, np.inf, 0, np.inf,
+                    -np.inf, 0, 0, ca.DM.zeros(k), ca.DM.zeros(g.sizes["grad"]),
+                    ca.DM.zeros(g.sizes["hess"]))
+    srows = ca.vertcat(*[ca.vec(sens[l][c].T) for l in range(L) for c in range(3)]) if L \
+        else ca.MX.zeros(0)
+    S, rows = g.steps_function()(S0, consts, kp, kd, targets, srows)
+    st, rw = unpack(S, g.sizes.items()), unpack(rows, row_fields(nv))
+    ended = st["n_imp"] >= spc
+    stop = ca.if_else(ca.logic_and(st["stop"] == 0, 1 - ended), stop_code("touchdown"), st["stop"])
+    valid = rw["valid"]
+    m = ca.sum2(valid)
+    n_max = g.n_max
+    # the update (eq. 3.6): the sums accumulated over the steps with the sensitivity rows of
+    # the samples nearest the steps' phases
+    theta_next = theta
+    if L:
+        g_ = st["grad"]
+        hess = ca.reshape(st["hess"], PL, PL) if g.gauss_newton else None
+        step = fel_update(CASADI, theta, g_, hess, rates, learner.is_goal, learner.update,
+                          damping)
+        theta_next = ca.if_else(stop == 0, step, theta)
+    # metrics (feltool.engines.python.cycle_outcome and contact_metrics over the steps run)
+    vrow = ca.repmat(valid, nv, 1)
+    finite = (ca.sum1(ca.sum2(ca.fabs(rw["q"]) * vrow)) + ca.sum1(ca.fabs(st["q"]))) < np.inf
+    hits = ca.MX.zeros(2 * nv)  # the joints' limits are not checked; the motors' torques are
+    for j, i in enumerate(W.motor_v):
+        hits[nv + int(i)] = st["hits"][j]
+    stats = [cycle_stats(law, valid, ca.vertcat(rw["q"], rw["v"]), rw["qd"], rw["U"],
+                         rw["Urows"], rw["Uerr"], rw["err"] * valid, hits, finite, valid)]
+    stab = np.flatnonzero(law.stabilizing).tolist()
+    cum = ca.cumsum(rw["impact"].T).T
+    steps_at, lengths = [], []
+    for t in range(spc):
+        hit = rw["impact"] * (ca.fabs(cum - (t + 1)) < 0.5)
+        steps_at.append(ca.sum2(hit * ca.DM(np.arange(1, n_max + 1)).T))
+        lengths.append(ca.sum2(hit * rw["length"]))
+    C = ca.DM(law.C)
+    if not stab and refs:
+        err_rows = [(C[i, :] @ rw["q"]) - rw["r"][i, :] for i in refs]
+    else:
+        err_rows = [(C[i, :] @ rw["q"]) - targets[i] for i in stab]
+    sq = sum(ca.sum2(wrap(CASADI, e_) ** 2 * valid) for e_ in err_rows) if err_rows else ca.MX(0)
+    stab_rms = ca.sqrt(sq / (m * len(err_rows))) if err_rows else ca.MX(0)
+    n_steps = st["n_imp"]
+    nan = ca.MX(np.nan)
+    contact = [st["min_fn"], st["max_ratio"],
+               ca.if_else(st["min_clear"] < np.inf, st["min_clear"], nan),
+               ca.if_else(n_steps > 0, st["max_imp_ratio"], nan), st["energy"],
+               ca.if_else(n_steps > 0, st["length"] / n_steps, nan), st["length"], n_steps,
+               m * stp.dt, ca.sum2(rw["work"]), stab_rms]
+    stats += [stop, m, *steps_at, *lengths, *contact]
+    outs = [ca.vertcat(theta_next, st["q"], st["v"]), ca.vertcat(*stats)]
+    names = ["state_next", "stats"]
+    if full:
+        outs.append(rows)
+        names.append("rows")
+    return ca.Function(name, [state, data, params], [ca.densify(o) for o in outs],
+                       ["state", "data", "params"], names)
+
+
+def _fel_step(kin: Kin, lay, exp, k: int) -> ca.Function:
+    """Per step ``(qd, vd, ad, label, A, e) -> (s, g)``: the learned joints' derivative
+    columns d through the completion's chain (:meth:`PhysicalWalker.chain`), in motor torques
+    when ``learning.error_space: motors`` (:math:`A d`, :math:`A e`): ``s = d^T e`` (3 L) and
+    the Gram ``g = d_a^T d_b`` (9 L^2)."""
+    nv = kin.nv
+    qs, vs, as_ = (ca.SX.sym(s, nv) for s in ("q", "v", "a"))
+    ls, Am, e = ca.SX.sym("l"), ca.SX.sym("A", k * nv), ca.SX.sym("e", nv)
+    tau = kin.rnea(qs, vs, as_)
+    Gc = kin.chain(qs, ls)
+    cols = [i for i, _ in lay.blocks]
+    d = [ca.mtimes(ca.jacobian(tau, z), Gc[:, i]) for z in (qs, vs, as_) for i in cols]
+    em = e
+    if exp.config.learning.error_space == "motors":
+        Amat = ca.reshape(Am, k, nv)
+        d = [ca.mtimes(Amat, di) for di in d]
+        em = ca.mtimes(Amat, e)
+    svals = ca.vertcat(*[ca.dot(di, em) for di in d])
+    gvals = ca.vertcat(*[ca.dot(da, db) for da in d for db in d])
+    return ca.Function("fel_step", [qs, vs, as_, ls, Am, e], [svals, gvals])
+
