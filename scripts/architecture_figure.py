@@ -63,7 +63,7 @@ def main(out: Path) -> None:
                                      connectionstyle="arc3,rad=0.08"))
     for name, (x, y) in pos.items():
         label = "feltool/__init__" if name == "feltool" else (
-            f"{name}.py" if name in ("errors", "bounds", "_version") else f"{name}/")
+            f"{name}.py" if name in ("errors", "bounds", "files", "_version") else f"{name}/")
         ax.add_patch(FancyBboxPatch((x - 0.1, y - 0.2), 0.2, 0.4,
                                     boxstyle="round,pad=0.01,rounding_size=0.05",
                                     fc="#eef2f8", ec="#334466", lw=0.9))

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 
 from feltool._version import __version__
 from feltool.cli import check, gait, plot, robots, robustness, run, sweep, view
 from feltool.cli.common import EXIT_CODES
 from feltool.errors import FeltoolError
+from feltool.files import reason
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,6 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
     args = build_parser().parse_args(argv)  # exits 2 on usage errors
+    if hasattr(signal, "SIGXFSZ"):  # past a file size limit (ulimit -f) a write fails with
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG, named, instead of killing us
     try:
         return args.func(args)
     except FeltoolError as exc:
@@ -41,6 +45,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. feltool inspect ... | head: the reader has gone
         _silence_stdout()
         return 0
+    except OSError as exc:  # the last net: an OS error no writer or reader named
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"feltool: error: {where}{reason(exc)}", file=sys.stderr)
+        return 1
 
 
 def _silence_stdout() -> None:

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import sys
 import typing
-from pathlib import Path
 
 from pydantic import BaseModel
 
 from feltool.config.experiment import ExperimentConfig
+from feltool.files import atomic_write
 
 HEADER = """# Configuration reference
 
@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     text = render()
     if argv:
-        Path(argv[0]).write_text(text)
+        atomic_write(argv[0], text)
     else:
         sys.stdout.write(text)
     return 0

@@ -19,6 +19,7 @@ import pinocchio as pin
 import yaml
 
 from feltool.errors import ConfigError, InputError, RobotError
+from feltool.files import atomic_write
 from feltool.gait.design import Gait, GaitSpec
 from feltool.robot.robot import load_robot, robot_spec
 from feltool.walking.model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
@@ -258,4 +259,4 @@ def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: s
                    f"{check.poincare['spectral_radius']:.3g}; summed feedback on the demos' "
                    f"orbit {check.feedback:.2g} N m.\n")
     text = yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=100)
-    Path(path).write_text(header + text)
+    atomic_write(path, header + text)

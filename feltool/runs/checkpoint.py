@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from feltool.errors import FeltoolError
-from feltool.runs.rundir import load_npz, save_npz, write_json
+from feltool.runs.rundir import damaged, load_npz, read_json, save_npz, write_json
 
 _STOP = {"requested": False, "signal": signal.SIGINT}
 
@@ -82,19 +82,38 @@ class Checkpointer:
             self.saved_cycle is None or time.monotonic() - self._last >= self.min_interval_s)
 
     def load(self) -> dict[str, Any] | None:
-        if not (self.arrays.is_file() and self.meta.is_file()):
+        """The last checkpoint, or None. The npz holds its own metadata (``meta_json``), so a
+        checkpoint whose ``.json`` could not be written (a full disk) still counts; one
+        written before that holds only the arrays and needs its ``.json`` (the pair)."""
+        if not self.arrays.is_file():
             return None
-        meta = json.loads(self.meta.read_text())
-        arrays = load_npz(self.arrays)
+        hint = (f"move {self.meta.name} and {self.arrays.name} away to run seed {self.seed} "
+                "again from its first cycle (to the same numbers)")
+        arrays = load_npz(self.arrays, hint)
+        if "meta_json" in arrays:
+            try:
+                meta = json.loads(arrays.pop("meta_json").tobytes())
+            except ValueError as exc:
+                raise damaged(self.arrays, f"its metadata is not valid JSON: {exc}",
+                              hint) from None
+        elif not self.meta.is_file():
+            return None
+        else:
+            meta = read_json(self.meta, hint)
         if meta.get("arrays_id") != int(arrays.get("arrays_id", -1)):
             return None  # torn pair (should not happen with atomic writes): start over
         return {**meta, **{k: v for k, v in arrays.items() if k != "arrays_id"}}
 
     def save(self, cycle: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        # The arrays first, then the metadata that names them: a reader only trusts a pair.
+        # One atomic file holds the arrays and the metadata: a write that fails (a full disk)
+        # leaves the previous checkpoint whole. The .json beside it is the same metadata, for
+        # people and tools that read it.
         arrays_id = cycle
-        save_npz(self.arrays, {**arrays, "arrays_id": np.array(arrays_id)})
-        write_json(self.meta, {**meta, "cycle": cycle, "arrays_id": arrays_id}, compact=True)
+        meta = {**meta, "cycle": cycle, "arrays_id": arrays_id}
+        text = json.dumps(meta, separators=(",", ":"))
+        save_npz(self.arrays, {**arrays, "arrays_id": np.array(arrays_id),
+                               "meta_json": np.frombuffer(text.encode(), np.uint8)})
+        write_json(self.meta, meta, compact=True)
         self._last, self.saved_cycle = time.monotonic(), cycle
 
     def clear(self) -> None:

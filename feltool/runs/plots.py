@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from feltool.runs.rundir import load_npz, read_metrics
+from feltool.files import make_dirs
+from feltool.runs.rundir import load_npz, read_metrics, write_by
 from feltool.runs.runstate import check_run_dir
 
 
@@ -41,7 +42,7 @@ def draw_figures(run_dir: Path, seed: int | None = None) -> list[Path]:
     run_dir = check_run_dir(Path(run_dir))
     rows = read_metrics(run_dir / "metrics.csv")
     out = run_dir / "figures"
-    out.mkdir(exist_ok=True)
+    make_dirs(out)
     if not rows:
         return []
     seeds = sorted({r["seed"] for r in rows})
@@ -80,7 +81,7 @@ def _feedback_convergence(rows, seeds, out: Path) -> Path:
     ax.legend()
     _layout(fig)
     path = out / "feedback_convergence.png"
-    fig.savefig(path, dpi=120)
+    write_by(path, lambda fh: fig.savefig(fh, format="png", dpi=120))
     plt.close(fig)
     return path
 
@@ -106,7 +107,7 @@ def _weight_convergence(params: dict[str, np.ndarray], seed: int, out: Path) -> 
             ax.grid(True, alpha=0.3)
     _layout(fig)
     path = out / "weight_convergence.png"
-    fig.savefig(path, dpi=120)
+    write_by(path, lambda fh: fig.savefig(fh, format="png", dpi=120))
     plt.close(fig)
     return path
 
@@ -131,7 +132,7 @@ def _trajectories(tr: dict[str, np.ndarray], seed: int, out: Path) -> Path:
         ax.set_xlabel("time in cycle [s]")
     _layout(fig)
     path = out / "trajectories_first_last.png"
-    fig.savefig(path, dpi=120)
+    write_by(path, lambda fh: fig.savefig(fh, format="png", dpi=120))
     plt.close(fig)
     return path
 
@@ -160,6 +161,6 @@ def _switches(tr: dict[str, np.ndarray], seed: int, out: Path) -> Path | None:
     axes[0][0].legend(loc="best")
     _layout(fig)
     path = out / "motion_events.png"
-    fig.savefig(path, dpi=120)
+    write_by(path, lambda fh: fig.savefig(fh, format="png", dpi=120))
     plt.close(fig)
     return path

@@ -19,12 +19,15 @@ timed by its mechanics) gets no score and its reason.
 from __future__ import annotations
 
 import csv
+import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from feltool.files import atomic_write
 
 GOAL = 0.05  # the goal: feedback below 5 % of the first cycle's
 
@@ -275,13 +278,13 @@ def format_scores(result: dict[str, Any]) -> str:
 
 def write(result: dict[str, Any], out: Path) -> None:
     """``robustness.json`` (everything) and ``robustness.csv`` (one row per point and seed)."""
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "robustness.json").write_text(json.dumps(result, indent=1))
-    with open(out / "robustness.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["learner", "scenario", "value", "seed", "reached", "fb_ratio_tail",
-                    "diverged", "wall_s"])
-        for p in result["points"]:
-            for s in p["seeds"]:
-                w.writerow([p["learner"], p["scenario"], p["value"], s["seed"], s["reached"],
-                            s["fb_ratio_tail"], s["diverged"], s["wall_s"]])
+    atomic_write(out / "robustness.json", json.dumps(result, indent=1))
+    fh = io.StringIO(newline="")
+    w = csv.writer(fh)
+    w.writerow(["learner", "scenario", "value", "seed", "reached", "fb_ratio_tail",
+                "diverged", "wall_s"])
+    for p in result["points"]:
+        for s in p["seeds"]:
+            w.writerow([p["learner"], p["scenario"], p["value"], s["seed"], s["reached"],
+                        s["fb_ratio_tail"], s["diverged"], s["wall_s"]])
+    atomic_write(out / "robustness.csv", fh.getvalue())

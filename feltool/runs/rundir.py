@@ -1,4 +1,6 @@
-"""The run directory: what a run writes, written atomically, and read back for plots.
+"""The run directory: what a run writes (through the one writer, :mod:`feltool.files`:
+atomically, OS errors named), and what reads it back (resume, plots, the viewer), each reader
+checking what it reads and naming a damaged file.
 
 ::
 
@@ -15,36 +17,18 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
-import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from feltool.errors import InputError
+from feltool.files import atomic_write, write_by
 
-def atomic_write(path: Path, data: bytes | str) -> None:
-    """Write a file so that a reader never sees half of it (temporary file, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, 0o666 & ~_UMASK)  # like any file a tool writes (mkstemp gives 0600)
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data.encode() if isinstance(data, str) else data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _umask()  # read once (os.umask can only be read by setting it)
+__all__ = ["atomic_write", "damaged", "load_npz", "read_json", "read_metrics", "save_npz",
+           "write_by", "write_json", "write_metrics"]
 
 
 def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -53,9 +37,42 @@ def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     atomic_write(path, buf.getvalue())
 
 
-def load_npz(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as data:
-        return {k: data[k] for k in data.files}
+def damaged(path: Path, detail: str, hint: str = "") -> InputError:
+    """The error for a file of a run directory that cannot be read as what it should be (cut
+    short by an interrupted copy, overwritten, a failing disk): one line naming it."""
+    return InputError(f"{path}: damaged or unreadable ({detail})" + (f"; {hint}" if hint else ""))
+
+
+#: What a damaged npz (a zip file of arrays) raises while it is opened or read.
+_NPZ_ERRORS = (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error,
+               NotImplementedError)
+
+
+def load_npz(path: Path, hint: str = "") -> dict[str, np.ndarray]:
+    """Every array of an npz file (``allow_pickle=False``); a damaged file is an
+    :class:`InputError` naming it (``hint``: what to do about it)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+    except FileNotFoundError:
+        raise damaged(path, "missing", hint) from None
+    except _NPZ_ERRORS as exc:
+        raise damaged(path, f"not a readable npz file: {str(exc)[:120] or type(exc).__name__}",
+                      hint) from None
+
+
+def read_json(path: Path, hint: str = "", kind: type = dict) -> Any:
+    """A JSON file's content, which must be a ``kind``; a missing, cut-short or otherwise
+    damaged file is an :class:`InputError` naming it (``hint``: what to do about it)."""
+    try:
+        data = json.loads(Path(path).read_bytes())
+    except FileNotFoundError:
+        raise damaged(path, "missing", hint) from None
+    except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError included
+        raise damaged(path, f"not valid JSON: {exc}", hint) from None
+    if not isinstance(data, kind):
+        raise damaged(path, f"holds a JSON {type(data).__name__}, not a {kind.__name__}", hint)
+    return data
 
 
 def write_metrics(path: Path, rows: list[dict[str, float]]) -> None:
@@ -71,9 +88,25 @@ def write_metrics(path: Path, rows: list[dict[str, float]]) -> None:
 
 
 def read_metrics(path: Path) -> list[dict[str, float]]:
-    with open(path, newline="") as fh:
-        return [{k: (int(v) if k in ("seed", "cycle") else float(v)) for k, v in row.items()}
-                for row in csv.DictReader(fh)]
+    """metrics.csv's rows; a damaged file (a row cut short, a value that is no number) is an
+    :class:`InputError` naming it and the line."""
+    try:
+        with open(path, newline="") as fh:
+            rows = []
+            for line, row in enumerate(csv.DictReader(fh), start=2):
+                if None in row or None in row.values():
+                    raise damaged(path, f"line {line} has {'more' if None in row else 'fewer'} "
+                                        "fields than the header")
+                try:
+                    rows.append({k: (int(v) if k in ("seed", "cycle") else float(v))
+                                 for k, v in row.items()})
+                except ValueError as exc:
+                    raise damaged(path, f"line {line}: {exc}") from None
+            return rows
+    except FileNotFoundError:
+        raise damaged(path, "missing") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise damaged(path, str(exc)) from None
 
 
 def write_json(path: Path, obj: Any, compact: bool = False) -> None:

@@ -25,10 +25,13 @@ from pathlib import Path
 from typing import Any
 
 from feltool.errors import InputError
-from feltool.runs.rundir import write_json
+from feltool.files import WriteError, claim_dir, create_new
+from feltool.runs.rundir import damaged, read_json, write_json
 
 STATES = ("running", "complete", "interrupted", "failed")
 LOCK_NAME = ".lock"
+CLAIMED_DIRS: set[Path] = set()  # run directories default_out_dir created in this process
+NOTHING_WRITTEN = "nothing of the run was written; choose another --out, or make room there"
 
 
 def utc_now() -> str:
@@ -39,6 +42,27 @@ def command_line() -> str:
     """The command that is running, as the user typed it (approximately)."""
     return " ".join(["feltool", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith(
         ("feltool", "__main__.py", "cli/main.py")) else " ".join(sys.argv)
+
+
+def default_out_dir(name: str, root: Path = Path("runs")) -> Path:
+    """A new run directory ``root/<name>-<UTC time>``, created here (with ``-2``, ``-3`` ...
+    when a run started in the same second took the name), so two runs never share one."""
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    for n in range(1, 100_000):
+        path = root / (f"{name}-{stamp}" + (f"-{n}" if n > 1 else ""))
+        try:
+            if claim_dir(path):
+                CLAIMED_DIRS.add(path)
+                return path
+        except WriteError as exc:
+            raise exc.keeping(NOTHING_WRITTEN, 2) from None
+    raise InputError(f"{root}: no free run directory name for {name}-{stamp}; use --out")
+
+
+def source_path(exp) -> str | None:
+    """The config file ``exp`` came from as an absolute path (what run.json and tasks keep,
+    so that a resume or a worker in another working directory finds the same files)."""
+    return str(Path(exp.source).resolve()) if exp.source else None
 
 
 def _alive(pid: int) -> bool:
@@ -77,13 +101,10 @@ class RunLock:
         return owner.get("host") == socket.gethostname() and not _alive(int(owner.get("pid", -1)))
 
     def acquire(self) -> RunLock:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         record = json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
                              "since_utc": utc_now(), "command": command_line()})
         for _ in range(2):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
-            except FileExistsError:
+            if not create_new(self.path, record):
                 if not self.stale():
                     owner = self.owner() or {}
                     raise InputError(
@@ -93,8 +114,6 @@ class RunLock:
                     ) from None
                 self.path.unlink(missing_ok=True)  # stale: its process is gone
                 continue
-            with os.fdopen(fd, "w") as fh:
-                fh.write(record)
             self.held = True
             return self
         raise InputError(f"{self.path.parent}: could not take the lock {self.path}")
@@ -111,11 +130,14 @@ class RunLock:
         self.release()
 
 
-def read_meta(meta_path: Path) -> dict[str, Any]:
-    try:
-        return json.loads(Path(meta_path).read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{meta_path}: cannot read ({exc})") from None
+def read_meta(meta_path: Path, required: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A directory's ``run.json`` / ``sweep.json``, which must hold the keys ``required``;
+    a damaged one is an :class:`InputError` naming it."""
+    meta = read_json(Path(meta_path))
+    missing = [k for k in required if k not in meta]
+    if missing:
+        raise damaged(meta_path, f"no {', '.join(missing)}; not written by feltool?")
+    return meta
 
 
 def run_state(directory: Path, meta_name: str = "run.json") -> str | None:

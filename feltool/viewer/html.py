@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from feltool.files import atomic_write
 from feltool.viewer.scene import (
     DEFAULT_GHOST_OPACITY,
     GHOST,
@@ -145,9 +146,7 @@ def record_html(robot, frames: Mapping[str, np.ndarray], dt: float, path: Path,
         commands=_json_in_script(encoded),
         clips=_json_in_script(per_clip),
     )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(page, encoding="utf-8")
-    return path
+    return atomic_write(path, page)
 
 
 def _json_in_script(obj) -> str:
