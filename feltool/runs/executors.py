@@ -16,12 +16,15 @@ import signal
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from feltool.errors import InputError
 from feltool.runs.checkpoint import Checkpointer, install_stop_handlers
+from feltool.runs.inputs import verify
+from feltool.runs.stops import WorkerLost
 
 #: The experiments built last in this process, by config (a sweep's or a robustness run's
 #: points come one after the other: a few are enough to reuse each, and memory stays bounded)
@@ -43,6 +46,10 @@ class Task:
         checkpoint_dir: Where to keep this seed's checkpoint, or None.
         checkpoint_every: Cycles between checkpoints.
         checkpoint_interval_s: Least time between checkpoints in [s].
+        inputs: ``(role, path, sha256)`` of the files the run was built from
+            (:func:`feltool.runs.inputs.fingerprints`): a worker that builds the experiment
+            anew checks them, so a robot edited while a sweep runs stops it instead of mixing
+            two robots.
     """
 
     key: str
@@ -53,6 +60,7 @@ class Task:
     checkpoint_dir: str | None = None
     checkpoint_every: int = 10
     checkpoint_interval_s: float = 0.0
+    inputs: tuple = ()
 
 
 def _ident(raw: dict, source) -> str:
@@ -62,7 +70,7 @@ def _ident(raw: dict, source) -> str:
 def remember(exp, raw: dict) -> None:
     """Keep a built experiment for the tasks of its config, so that this process and the
     workers forked from it reuse it (and its loaded compiled cycle) instead of rebuilding."""
-    _keep(_ident(raw, str(exp.source) if exp.source else None), exp)
+    _keep(_ident(raw, str(Path(exp.source).resolve()) if exp.source else None), exp)
 
 
 def _keep(ident: str, exp) -> None:
@@ -84,6 +92,8 @@ def run_task(task: Task, on_cycle: Callable | None = None, put: Callable | None 
     exp = _CACHE.get(ident)
     if exp is None:
         exp = build_experiment(task.raw, Path(task.source) if task.source else None)
+        verify(task.inputs, f"seed {task.seed}" + (f" of point {task.key}"
+                                                   if task.key != "run" else ""))
     _keep(ident, exp)
     if put is None and _PROGRESS.get("queue") is not None:
         put = _PROGRESS["queue"].put
@@ -120,7 +130,14 @@ class LocalExecutor:
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
-                    yield futures[fut], fut.result()
+                    try:
+                        result = fut.result()
+                    except BrokenProcessPool:
+                        raise WorkerLost(
+                            f"a worker process died while it ran seed {futures[fut].seed} "
+                            "(killed by a signal, or by the system when memory ran out)"
+                        ) from None
+                    yield futures[fut], result
 
         return results()
 

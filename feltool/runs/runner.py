@@ -28,7 +28,9 @@ from feltool.config.memory import check_memory
 from feltool.engines.compiled.engine import compiled_engine
 from feltool.errors import InputError
 from feltool.experiment.experiment import Experiment
+from feltool.files import WriteError, remove_stale_temporaries
 from feltool.runs.checkpoint import (
+    Checkpointer,
     Interrupted,
     remove_empty,
     request_stop,
@@ -37,21 +39,34 @@ from feltool.runs.checkpoint import (
 )
 from feltool.runs.executors import Task, inline, make_executor, run_task
 from feltool.runs.experiments import build_experiment
+from feltool.runs.inputs import check_inputs, fingerprints, record_inputs
 from feltool.runs.observers import stabilization_errors
-from feltool.runs.rundir import atomic_write, load_npz, save_npz, write_json, write_metrics
-from feltool.runs.runstate import RunLock, read_meta, refuse_existing, set_state
+from feltool.runs.rundir import (
+    atomic_write,
+    damaged,
+    load_npz,
+    read_json,
+    save_npz,
+    write_json,
+    write_metrics,
+)
+from feltool.runs.runstate import (
+    CLAIMED_DIRS,
+    RunLock,
+    default_out_dir,  # noqa: F401  (feltool run's and sweep's, imported from here)
+    read_meta,
+    refuse_existing,
+    set_state,
+    source_path,
+)
 from feltool.runs.seed import SeedResult
+from feltool.runs.stops import NOTHING_WRITTEN, WorkerLost, discard_new, kept, mark, stopped
 
 CHECKPOINT_EVERY = 10  # cycles
 CHECKPOINT_INTERVAL_S = 1.0  # [s] at least between a seed's checkpoints
 #: [s] about what starting a pool of worker processes costs: seeds that take less in all run in
 #: this process (the compiled engine's seeds often take milliseconds)
 POOL_START_S = 1.0
-
-
-def default_out_dir(name: str, root: Path = Path("runs")) -> Path:
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    return root / f"{name}-{stamp}"
 
 
 def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] | None = None,
@@ -99,35 +114,70 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
         refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")
     parallel = min(workers or os.cpu_count() or 1, len(seeds))
     if parallel > 1:  # building checked one process; the pool runs this many at once
-        check_memory(cfg, exp.robot.joint_names, exp.robot.model.njoints - 1,
-                     str(exp.source) if exp.source else None, processes=parallel)
-    with RunLock(out_dir):
-        if resume:
-            _check_resumable(out_dir, exp, seeds, cycles)
-        else:
-            refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")  # a race
-            atomic_write(out_dir / "config.yaml",
-                         config_to_yaml(cfg, exp.source.parent if exp.source else None))
-            write_json(out_dir / "run.json", {
-                "source": str(exp.source) if exp.source else None, "raw": raw, "seeds": seeds,
-                "cycles": cycles, "config_fingerprint": _fingerprint(exp)})
-        set_state(out_dir, "running", cycles=cycles)
         try:
+            check_memory(cfg, exp.robot.joint_names, exp.robot.model.njoints - 1,
+                         str(exp.source) if exp.source else None, processes=parallel)
+        except InputError:
+            if out_dir in CLAIMED_DIRS:
+                discard_new(out_dir)
+            raise
+    fresh = not resume  # refuse_existing found it empty: what is in it is this command's
+    made = fresh and (not out_dir.exists() or out_dir in CLAIMED_DIRS)  # and the directory too
+    try:
+        lock = RunLock(out_dir).acquire()
+    except WriteError as exc:
+        raise exc.keeping(NOTHING_WRITTEN, 2) from None
+    try:
+        try:
+            done = None
+            if resume:  # everything it reads is checked before anything changes
+                meta = _check_resumable(out_dir, exp, seeds, cycles)
+                done = _finished_seeds(out_dir, seeds, cycles)
+                remove_stale_temporaries(out_dir)
+                _record_cycles(out_dir, exp, meta, cycles)
             compile_s = prepare_engine(exp, raw)
+            if not resume:
+                refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")  # a race
+                atomic_write(out_dir / "config.yaml",
+                             config_to_yaml(cfg, exp.source.parent if exp.source else None))
+                write_json(out_dir / "run.json", {
+                    "source": source_path(exp), "raw": raw, "seeds": seeds, "cycles": cycles,
+                    "config_fingerprint": _fingerprint(exp),
+                    "inputs": record_inputs(exp, out_dir)})
+            set_state(out_dir, "running", cycles=cycles)
+        except BaseException as exc:
+            lock.release()
+            if fresh:
+                discard_new(out_dir, remove_dir=made)
+            if isinstance(exc, WriteError):
+                raise exc.keeping(NOTHING_WRITTEN if fresh else "the run is as it was", 2) \
+                    from None
+            raise
+        try:
             summary = _run_seeds(exp, raw, out_dir, seeds, cycles, workers, show_progress,
                                  scheduler, on_cycle, progress_lines,
-                                 {"started": started, "compile_s": compile_s})
+                                 {"started": started, "compile_s": compile_s}, done)
+            set_state(out_dir, "complete", outcome=_outcome(summary))
         except Interrupted:
-            set_state(out_dir, "interrupted")
+            mark(out_dir, "interrupted")
             raise
+        except (WriteError, WorkerLost) as exc:
+            mark(out_dir, "interrupted")
+            raise stopped(exc, kept(out_dir, len(seeds), f"feltool run --resume {out_dir}")) \
+                from None
         except BaseException:
-            set_state(out_dir, "failed")
+            mark(out_dir, "failed")
             raise
-        set_state(out_dir, "complete", outcome=_outcome(summary))
+    finally:
+        lock.release()
     if figures:
         from feltool.runs.plots import draw_figures
 
-        draw_figures(out_dir)
+        try:
+            draw_figures(out_dir)
+        except WriteError as exc:
+            raise exc.keeping(f"the run is complete; draw its figures again with: feltool plot "
+                              f"{out_dir}", 1) from None
     return summary
 
 
@@ -146,11 +196,12 @@ def prepare_engine(exp: Experiment, raw: dict) -> float:
 
 def _run_seeds(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int], cycles: int,
                workers, show_progress, scheduler, on_cycle, progress_lines,
-               timing: dict | None = None) -> dict[str, Any]:
-    finished = {s: r for s in seeds if (r := load_seed_result(out_dir, s)) is not None
-                and not _needs_more_cycles(r, cycles)}
-    tasks = [Task("run", raw, str(exp.source) if exp.source else None, s, cycles,
-                  str(out_dir / "checkpoints"), CHECKPOINT_EVERY, CHECKPOINT_INTERVAL_S)
+               timing: dict | None = None, finished: dict | None = None) -> dict[str, Any]:
+    if finished is None:
+        finished = _finished_seeds(out_dir, seeds, cycles)
+    inputs = fingerprints(read_meta(out_dir / "run.json").get("inputs"))
+    tasks = [Task("run", raw, source_path(exp), s, cycles, str(out_dir / "checkpoints"),
+                  CHECKPOINT_EVERY, CHECKPOINT_INTERVAL_S, inputs)
              for s in seeds if s not in finished]
     results = dict(finished)
     batches = [tasks]
@@ -169,6 +220,17 @@ def _run_seeds(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int], cycl
             workers = 1  # the other seeds take less time than starting workers would
     remove_empty(out_dir / "checkpoints")
     return write_results(exp, out_dir, [results[s] for s in seeds], timing)
+
+
+def _finished_seeds(out_dir: Path, seeds: list[int], cycles: int) -> dict[int, SeedResult]:
+    """The seeds saved as finished (with the cycles asked); every seed record and checkpoint
+    is read, so a damaged one is named before the run changes anything."""
+    finished = {s: r for s in seeds if (r := load_seed_result(out_dir, s)) is not None
+                and not _needs_more_cycles(r, cycles)}
+    for s in seeds:
+        if s not in finished:
+            Checkpointer(out_dir / "checkpoints", s).load()
+    return finished
 
 
 def _needs_more_cycles(result: SeedResult, cycles: int) -> bool:
@@ -192,12 +254,15 @@ def _differences(a: Any, b: Any, path: str = "") -> list[str]:
     return [] if a == b else [f"{path or '<config>'}: {a!r} -> {b!r}"]
 
 
-def _check_resumable(run_dir: Path, exp: Experiment, seeds: list[int], cycles: int) -> None:
-    """Refuse to continue ``run_dir`` with another config, other seeds or fewer cycles."""
+def _check_resumable(run_dir: Path, exp: Experiment, seeds: list[int],
+                     cycles: int) -> dict[str, Any]:
+    """Refuse to continue ``run_dir`` with another config, other seeds, fewer cycles or other
+    input files; its ``run.json``."""
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
         raise InputError(f"{run_dir}: no run.json, so not a feltool run directory to resume")
-    meta = read_meta(meta_path)  # no other process runs it: the caller holds its lock
+    meta = read_meta(meta_path, REQUIRED)  # no other process runs it: the caller holds its lock
+    check_inputs(meta.get("inputs"), run_dir, f"--resume {run_dir}")
     stored = meta.get("config_fingerprint")
     if stored is None:  # a directory from before fingerprints: rebuild its config
         stored = _fingerprint(build_experiment(meta["raw"], Path(meta["source"])
@@ -213,14 +278,19 @@ def _check_resumable(run_dir: Path, exp: Experiment, seeds: list[int], cycles: i
                          "resume it as it is (feltool run --resume RUN_DIR) or start a new run:\n  "
                          + "\n  ".join(problems[:12])
                          + (f"\n  ... ({len(problems) - 12} more)" if len(problems) > 12 else ""))
-    if cycles != meta["cycles"]:  # more cycles: the stored config says so too
+    return meta
+
+
+def _record_cycles(run_dir: Path, exp: Experiment, meta: dict, cycles: int) -> None:
+    """A resume that adds cycles: the stored config says so too."""
+    if cycles != meta["cycles"]:
         cfg = exp.config.model_copy(update={"sim": exp.config.sim.model_copy(
             update={"cycles": cycles})})
         atomic_write(run_dir / "config.yaml",
                      config_to_yaml(cfg, exp.source.parent if exp.source else None))
         meta["cycles"] = cycles
         meta["raw"] = apply_overrides(meta["raw"], [f"sim.cycles={cycles}"])
-        write_json(meta_path, meta)
+        write_json(run_dir / "run.json", meta)
 
 
 def _seed_text(seeds: list[int]) -> str:
@@ -246,13 +316,19 @@ def resume_run(run_dir: Path, workers: int | None = None, show_progress: bool = 
 
 
 def stored_experiment(run_dir: Path) -> tuple[Experiment, dict[str, Any]]:
-    """The experiment a run directory was made with, and its ``run.json``."""
+    """The experiment a run directory was made with, and its ``run.json`` (its recorded
+    inputs checked first: a changed robot is refused, naming it)."""
     meta_path = Path(run_dir) / "run.json"
     if not meta_path.is_file():
         raise InputError(f"{run_dir}: no run.json, so not a feltool run directory to resume")
-    meta = read_meta(meta_path)
+    meta = read_meta(meta_path, REQUIRED)
+    check_inputs(meta.get("inputs"), Path(run_dir), f"--resume {run_dir}")
     source = Path(meta["source"]) if meta["source"] else None
     return build_experiment(meta["raw"], source), meta
+
+
+#: What ``run.json`` must hold for a resume.
+REQUIRED = ("source", "raw", "seeds", "cycles")
 
 
 def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name: str,
@@ -325,6 +401,10 @@ def execute(tasks: list[Task], workers: int | None, scheduler: str | None, name:
             yield item
         if interrupted is not None or stop_requested():
             raise Interrupted("stopped on request; finished seeds and checkpoints are saved")
+    except BaseException:  # a fault here (a full disk, a lost worker): the others stop too
+        if executor is not None:
+            executor.interrupt()
+        raise
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -405,12 +485,16 @@ def load_seed_result(out_dir: Path, seed: int) -> SeedResult | None:
     record = out_dir / "seeds" / f"seed-{seed}.json"
     if not record.is_file():
         return None
-    data = json.loads(record.read_text())
+    hint = (f"move it away to run seed {seed} again (its params/ and traces/ files go with it)")
+    data = read_json(record, hint)
+    if not isinstance(data.get("rows"), list) or not isinstance(data.get("summary"), dict) \
+            or data["summary"].get("seed") != seed:
+        raise damaged(record, f"not the record of seed {seed}", hint)
     traces_path = out_dir / "traces" / f"seed-{seed}.npz"
-    traces = {k: v for k, v in load_npz(traces_path).items() if k not in ("joint_names", "dt")} \
-        if traces_path.is_file() else {}
+    traces = {k: v for k, v in load_npz(traces_path, hint).items()
+              if k not in ("joint_names", "dt")} if traces_path.is_file() else {}
     return SeedResult(seed, data["rows"], data["summary"],
-                      load_npz(out_dir / "params" / f"seed-{seed}.npz"), traces)
+                      load_npz(out_dir / "params" / f"seed-{seed}.npz", hint), traces)
 
 
 def write_results(exp: Experiment, out_dir: Path, results: list[SeedResult],

@@ -31,19 +31,23 @@ from feltool.bounds import MAX_SWEEP_POINTS
 from feltool.config.files import apply_overrides, read_yaml
 from feltool.config.safe_yaml import YamlBoundError, load_yaml
 from feltool.errors import ConfigError, InputError
+from feltool.files import WriteError, remove_stale_temporaries
 from feltool.runs.checkpoint import Interrupted, remove_empty
 from feltool.runs.executors import Task
 from feltool.runs.experiments import build_experiment, resolve_config_path
-from feltool.runs.rundir import atomic_write, write_json
+from feltool.runs.inputs import check_inputs, fingerprints, input_files, merge, record_inputs
+from feltool.runs.rundir import atomic_write, write_by, write_json
 from feltool.runs.runner import (
     CHECKPOINT_EVERY,
     CHECKPOINT_INTERVAL_S,
+    CLAIMED_DIRS,
     execute,
     load_seed_result,
     save_seed_result,
     write_results,
 )
-from feltool.runs.runstate import RunLock, refuse_existing, set_state
+from feltool.runs.runstate import RunLock, read_meta, refuse_existing, set_state
+from feltool.runs.stops import NOTHING_WRITTEN, WorkerLost, discard_new, kept, mark, stopped
 
 
 def parse_grid(specs: list[str]) -> dict[str, list]:
@@ -90,25 +94,52 @@ def run_sweep(config: str | Path | None, grid: dict[str, list] | None, out_dir: 
     out_dir = Path(out_dir)
     meta_path = out_dir / "sweep.json"
     hint = f"feltool sweep --resume {out_dir}"
+    made = not resume and (not out_dir.exists() or out_dir in CLAIMED_DIRS)
     if not resume:
         refuse_existing(out_dir, "sweep.json", hint)
-        meta = _new_sweep(config, grid, seeds, cycles)  # bad input fails before any write
+        try:
+            meta = _new_sweep(config, grid, seeds, cycles)  # bad input fails before any write
+        except BaseException:
+            discard_new(out_dir, remove_dir=made)
+            raise
     elif not meta_path.is_file():
         raise InputError(f"{out_dir}: no sweep.json, so not a sweep directory to resume")
-    with RunLock(out_dir):
-        if not resume:
-            refuse_existing(out_dir, "sweep.json", hint)  # another process got here first
-            write_json(meta_path, meta)
-        set_state(out_dir, "running", "sweep.json")
+    try:
+        lock = RunLock(out_dir).acquire()
+    except WriteError as exc:
+        raise exc.keeping(NOTHING_WRITTEN, 2) from None
+    try:
+        try:
+            if not resume:
+                refuse_existing(out_dir, "sweep.json", hint)  # another process got here first
+                write_json(meta_path, meta)
+            else:
+                remove_stale_temporaries(out_dir)
+            set_state(out_dir, "running", "sweep.json")
+        except BaseException as exc:
+            lock.release()
+            if not resume:
+                discard_new(out_dir, remove_dir=made)
+            if isinstance(exc, WriteError):
+                raise exc.keeping(NOTHING_WRITTEN if not resume else "the sweep is as it was",
+                                  2) from None
+            raise
         try:
             rows = _sweep_points(out_dir, workers, scheduler, show_progress, progress_lines)
+            set_state(out_dir, "complete", "sweep.json")
         except Interrupted:
-            set_state(out_dir, "interrupted", "sweep.json")
+            mark(out_dir, "interrupted", "sweep.json")
             raise
+        except (WriteError, WorkerLost) as exc:
+            mark(out_dir, "interrupted", "sweep.json")
+            meta = read_meta(meta_path)
+            raise stopped(exc, kept(out_dir, len(meta["points"]) * len(meta["seeds"]), hint)) \
+                from None
         except BaseException:
-            set_state(out_dir, "failed", "sweep.json")
+            mark(out_dir, "failed", "sweep.json")
             raise
-        set_state(out_dir, "complete", "sweep.json")
+    finally:
+        lock.release()
     return rows
 
 
@@ -128,26 +159,29 @@ def _new_sweep(config, grid, seeds, cycles) -> dict[str, Any]:
                                           "sweep: {grid: {a.b: [1, 2]}} block")], str(source))
     points = grid_points(full_grid)
     # Validate every point before anything runs: a bad value fails fast, naming its point.
-    first = None
-    for i, point in enumerate(points):
-        exp = _build(raw, point, source, cycles, i)
-        first = first or exp
-    meta = {"source": str(source), "raw": raw, "grid": full_grid, "points": points,
+    exps = [_build(raw, point, source, cycles, i) for i, point in enumerate(points)]
+    first = exps[0]
+    meta = {"source": str(Path(source).resolve()), "raw": raw, "grid": full_grid,
+            "points": points,
             "seeds": list(seeds if seeds is not None else first.config.seed_list),
-            "cycles": cycles or first.config.sim.cycles}
+            "cycles": cycles or first.config.sim.cycles,
+            "inputs": merge([record_inputs(e) for e in exps])}
     return meta
 
 
 def _sweep_points(out_dir: Path, workers, scheduler, show_progress, progress_lines):
-    meta = json.loads((out_dir / "sweep.json").read_text())
+    meta = read_meta(out_dir / "sweep.json", ("source", "raw", "grid", "points", "seeds",
+                                              "cycles"))
+    check_inputs(meta.get("inputs"), None, f"sweep {out_dir}")
     source = Path(meta["source"])
     exps, tasks = [], []
     for i, point in enumerate(meta["points"]):
         exp = _build(meta["raw"], point, source, meta["cycles"], i)
         exps.append(exp)
+        inputs = tuple(f for f in fingerprints(meta.get("inputs"))
+                       if Path(f[1]) in input_files(exp))
         run_dir = out_dir / f"point-{i:03d}"
         if not (run_dir / "config.yaml").is_file():
-            run_dir.mkdir(parents=True, exist_ok=True)
             from feltool.config.files import config_to_yaml
 
             atomic_write(run_dir / "config.yaml", config_to_yaml(exp.config, source.parent))
@@ -156,7 +190,7 @@ def _sweep_points(out_dir: Path, workers, scheduler, show_progress, progress_lin
                 tasks.append(Task(str(i), _point_raw(meta["raw"], point, meta["cycles"]),
                                   str(source), seed, meta["cycles"],
                                   str(run_dir / "checkpoints"), CHECKPOINT_EVERY,
-                                  CHECKPOINT_INTERVAL_S))
+                                  CHECKPOINT_INTERVAL_S, inputs))
     for task, result in execute(tasks, workers, scheduler, "sweep",
                                 len(tasks) * meta["cycles"], show_progress,
                                 progress_lines=progress_lines, cycles=meta["cycles"]):
@@ -253,8 +287,7 @@ def plot_sweep(out_dir: Path, grid: dict[str, list], rows: list[dict[str, Any]])
                         color="k" if np.isnan(Z[j, i]) else "w")
     ax.set_title("Sweep: mean cycles to converge over seeds")
     fig.tight_layout()
-    path = out_dir / "figures" / "sweep.png"
-    path.parent.mkdir(exist_ok=True)
-    fig.savefig(path, dpi=110)
+    path = write_by(out_dir / "figures" / "sweep.png",
+                    lambda fh: fig.savefig(fh, format="png", dpi=110))
     plt.close(fig)
     return path
