@@ -5,6 +5,7 @@ system compiler and cached on disk.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shutil
 import subprocess
@@ -13,6 +14,8 @@ import tempfile
 from pathlib import Path
 
 import casadi as ca
+
+from feltool.files import WriteError, atomic_write, reason
 
 _WARNED: set[str] = set()
 
@@ -37,41 +40,90 @@ def compile_functions(fns: list[ca.Function], directory: Path | None = None,
     """Generate ``fns`` to one C file, compile it with the system compiler and load the
     functions from it; the library is cached under a hash of the graphs and the CasADi version.
     Without a working compiler: ``fns`` themselves (CasADi's virtual machine, said once), or
-    None unless ``vm_fallback``."""
+    None unless ``vm_fallback``.
+
+    A cached library is loaded only after its size and SHA-256 match the record written
+    beside it when it was built (``NAME.so.json``): a library cut short (an interrupted copy of
+    the cache, a full disk) would crash the process when loaded (SIGBUS), so one that does not
+    match, or has no record, is built again. A cache directory that cannot be written (read
+    only, full) costs only time: the library is then built in a temporary directory, used by
+    this process and not kept (said once)."""
     directory = directory or cache_dir()
     digest = hashlib.sha256(ca.__version__.encode())
     for fn in fns:
         digest.update(fn.serialize().encode())
     name = f"feltool_cycle_{digest.hexdigest()[:20]}"
     lib = directory / f"{name}.so"
+    if verified(lib):
+        return [ca.external(fn.name(), str(lib)) for fn in fns]
     compiler = c_compiler()
-    if not lib.is_file():
-        if compiler is None:
-            if not vm_fallback:
-                return None
-            note_once("no C compiler found (set CC); the compiled backend runs in CasADi's "
-                      "interpreted virtual machine instead, which is much slower")
-            return fns
+    if compiler is None:
+        if not vm_fallback:
+            return None
+        note_once("no C compiler found (set CC); the compiled backend runs in CasADi's "
+                  "interpreted virtual machine instead, which is much slower")
+        return fns
+    try:
         directory.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=directory) as tmp:
-            src = Path(tmp) / f"{name}.c"
-            gen = ca.CodeGenerator(src.name, {"with_header": False, "casadi_int": "long long"})
-            for fn in fns:
-                gen.add(fn)
-            gen.generate(tmp + os.sep)
-            out = Path(tmp) / lib.name
-            try:
-                proc = subprocess.run([compiler, "-O2", "-shared", "-fPIC", "-o", str(out),
-                                       str(src)], capture_output=True, text=True, timeout=600)
-            except (OSError, subprocess.TimeoutExpired) as exc:
-                proc = subprocess.CompletedProcess([], 1, "", str(exc))
-            if proc.returncode != 0 or not out.is_file():
-                if not vm_fallback:
-                    return None
-                note_once(f"compiling the cycle failed ({proc.stderr.strip()[:300]}); using "
-                          "CasADi's interpreted virtual machine instead")
-                return fns
-            os.replace(out, lib)  # atomic: concurrent workers never load half a library
+            return _build(fns, name, compiler, Path(tmp), lib, vm_fallback)
+    except (OSError, WriteError) as exc:  # the cache cannot be written: build elsewhere
+        why = exc.reason if isinstance(exc, WriteError) else reason(exc)
+        note_once(f"the compiled-engine cache {directory} cannot be written ({why}); the "
+                  "cycle is compiled in a temporary directory and not kept (set "
+                  "FELTOOL_CACHE to a writable directory)")
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            loaded = _build(fns, name, compiler, Path(tmp), Path(tmp) / "lib" / f"{name}.so",
+                            vm_fallback)
+        return loaded  # loaded before its directory went: the process keeps the mapping
+    except (OSError, WriteError) as exc:
+        if not vm_fallback:
+            return None
+        note_once(f"the cycle cannot be compiled anywhere ({exc}); using CasADi's interpreted "
+                  "virtual machine instead")
+        return fns
+
+
+def verified(lib: Path) -> bool:
+    """Whether ``lib`` exists and has the size and SHA-256 recorded beside it."""
+    record = lib.with_name(lib.name + ".json")
+    try:
+        expected = json.loads(record.read_text())
+        data = lib.read_bytes()
+    except (OSError, ValueError):
+        return False
+    return isinstance(expected, dict) and expected.get("size") == len(data) and \
+        expected.get("sha256") == hashlib.sha256(data).hexdigest()
+
+
+def _build(fns: list[ca.Function], name: str, compiler: str, tmp: Path, lib: Path,
+           vm_fallback: bool) -> list[ca.Function] | None:
+    """Generate and compile in ``tmp``, record the library's size and digest, move it to
+    ``lib`` (atomic: concurrent workers never load half a library) and load it."""
+    src = tmp / f"{name}.c"
+    gen = ca.CodeGenerator(src.name, {"with_header": False, "casadi_int": "long long"})
+    for fn in fns:
+        gen.add(fn)
+    gen.generate(str(tmp) + os.sep)
+    out = tmp / lib.name
+    try:
+        proc = subprocess.run([compiler, "-O2", "-shared", "-fPIC", "-o", str(out), str(src)],
+                              capture_output=True, text=True, timeout=600)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        proc = subprocess.CompletedProcess([], 1, "", str(exc))
+    if proc.returncode != 0 or not out.is_file():
+        if not vm_fallback:
+            return None
+        note_once(f"compiling the cycle failed ({proc.stderr.strip()[:300]}); using "
+                  "CasADi's interpreted virtual machine instead")
+        return fns
+    data = out.read_bytes()
+    lib.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(lib.with_name(lib.name + ".json"), json.dumps(
+        {"size": len(data), "sha256": hashlib.sha256(data).hexdigest(),
+         "casadi": ca.__version__}) + "\n")
+    os.replace(out, lib)
     return [ca.external(fn.name(), str(lib)) for fn in fns]
 
 
