@@ -30,8 +30,33 @@ def explain(exp: Experiment, out: CycleOutcome, cycle: int,
     if out.fall:
         return out.fall
     if out.finite and out.max_speed <= sim.max_velocity and out.max_error <= sim.max_error_rad:
-        return None
+        bad = _nonfinite_parameters(exp, out)
+        if bad is None:
+            return None
+        L = exp.config.learning
+        return (f"the learning update after the cycle made {bad} non-finite (NaN or infinite) "
+                f"while the cycle itself stayed finite; the last finite parameters are kept; "
+                f"likely cause: the step of learning.update {L.update} (learning.rates: "
+                f"weights {L.rates.weights:g}, goal {L.rates.goal:g}) is too large or "
+                "ill-conditioned for this robot")
     return f"{_runaway(exp, out)}; likely cause: {_cause(exp, cycle, rows)}"
+
+
+def _nonfinite_parameters(exp: Experiment, out: CycleOutcome) -> str | None:
+    """The parameters a cycle's update made non-finite, named as params/seed-N.npz names
+    them, or None when every one is finite."""
+    parts = []
+    theta = np.asarray(out.theta_next, dtype=float)
+    if not np.all(np.isfinite(theta)):
+        for key, value in exp.split_parameters(theta).items():
+            bad = ~np.isfinite(np.asarray(value, dtype=float))
+            if bad.any():
+                parts.append(f"{key} ({int(bad.sum())} of {bad.size})")
+        parts = parts or ["the RMP parameters"]
+    if out.theta_m_next is not None and \
+            not np.all(np.isfinite(np.asarray(out.theta_m_next, dtype=float))):
+        parts.append("model.theta (the inverse-model correction)")
+    return ", ".join(parts) or None
 
 
 def _unit(exp: Experiment, j: int) -> str:
