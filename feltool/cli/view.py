@@ -44,6 +44,10 @@ def cmd_view(args: argparse.Namespace) -> int:
     from feltool.viewer.rollout import load_rollouts, parse_cycles, run_robot, write_rollout_html
 
     cycles = parse_cycles(args.cycles)
+    if args.zmq_url is not None:
+        from feltool.viewer.live import check_zmq_url
+
+        check_zmq_url(args.zmq_url)  # before anything slow
     seed, _, _ = load_rollouts(args.run_dir, args.seed, cycles)  # bad input fails first
     robot = run_robot(args.run_dir)
     if args.html:

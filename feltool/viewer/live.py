@@ -7,6 +7,7 @@ from __future__ import annotations
 import atexit
 import math
 import os
+import re
 import selectors
 import subprocess
 import sys
@@ -17,6 +18,7 @@ import webbrowser
 
 import pinocchio as pin
 
+from feltool.errors import InputError
 from feltool.viewer.scene import (
     DEFAULT_GHOST_OPACITY,
     GHOST,
@@ -63,6 +65,35 @@ try:
 except KeyboardInterrupt:
     pass
 """
+
+
+#: [s] at most to wait for a server at ``zmq_url`` to answer its first request
+HANDSHAKE_S = 5.0
+_ZMQ_URL = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})|ipc://\S+")
+
+
+def check_zmq_url(url: str) -> str:
+    """``url`` if it is a ZMQ address a meshcat server can listen on (``tcp://HOST:PORT``, as
+    ``meshcat-server`` prints it, or ``ipc://PATH``), else an :class:`InputError` naming it."""
+    m = _ZMQ_URL.fullmatch(url.strip()) if isinstance(url, str) else None
+    if m is None or (m.group(2) is not None and not 0 < int(m.group(2)) < 65536):
+        raise InputError(f"--zmq-url {url!r}: not a meshcat server's ZMQ address; use "
+                         "tcp://HOST:PORT as meshcat-server prints it (e.g. "
+                         "tcp://127.0.0.1:6000)")
+    return url.strip()
+
+
+def _server_failure(err: str) -> str:
+    """One line on why the meshcat server did not start, from its stderr."""
+    lines = [ln.strip() for ln in err.splitlines() if ln.strip()]
+    busy = [ln for ln in lines if "in use" in ln]
+    last = next((ln for ln in reversed(lines) if "in use" not in ln), "")
+    if "available port" in last or busy:
+        span = re.search(r"\[(\d+), (\d+)\)", last)
+        where = f" {span.group(1)}-{int(span.group(2)) - 1}" if span else ""
+        return (f"every port it tried{where} is in use ({len(busy)} tried); stop other "
+                "meshcat servers, or connect to one with --zmq-url")
+    return last[:300]
 
 
 def _stop_process(proc: subprocess.Popen, timeout: float = 3.0) -> None:
@@ -131,9 +162,15 @@ class LiveViewer:
             if zmq_url is None:
                 self.zmq_url, self.url = self._start_server()
             else:
-                self.zmq_url = zmq_url
-                self._connect()
-                self.url = self._request(b"url").decode("utf-8")
+                self.zmq_url = check_zmq_url(zmq_url)
+                self._connect(min(self._timeout, HANDSHAKE_S))
+                try:
+                    self.url = self._request(b"url").decode("utf-8", "replace")
+                except ViewerError:
+                    raise ViewerError(
+                        f"--zmq-url {zmq_url}: no meshcat server answered within "
+                        f"{min(self._timeout, HANDSHAKE_S):g} s (is one running there? leave "
+                        "out --zmq-url to start one)") from None
                 # as meshcat's own client does: reconnect after asking for the URL, or the
                 # server's receiver can stall until the next connection
             self._connect()
@@ -180,11 +217,11 @@ class LiveViewer:
                         found[key] = value
         if "web_url" not in found or "zmq_url" not in found:
             self._stderr.seek(0)
-            err = self._stderr.read().decode("utf-8", "replace")[-2000:]
+            why = _server_failure(self._stderr.read().decode("utf-8", "replace")[-20000:])
             raise ViewerError("the meshcat server did not start"
                               + (f" (exit code {self._proc.poll()})" if self._proc.poll()
                                  is not None else f" within {self._timeout:g} s")
-                              + (f":\n{err}" if err.strip() else ""))
+                              + (f": {why}" if why else ""))
         # keep draining stdout so a chatty server never blocks on a full pipe
         stdout = self._proc.stdout
         threading.Thread(target=lambda: [None for _ in iter(lambda: stdout.read(4096), b"")],
@@ -200,17 +237,23 @@ class LiveViewer:
         self._lock = threading.Lock()
         self._connect()
 
-    def _connect(self) -> None:
+    def _connect(self, timeout: float | None = None) -> None:
         zmq = self._zmq
         if self._context is None:
             self._context = zmq.Context()
         if self._socket is not None:
             self._socket.close(linger=0)
+            self._socket = None
+        ms = int((self._timeout if timeout is None else timeout) * 1000)
         sock = self._context.socket(zmq.REQ)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.setsockopt(zmq.RCVTIMEO, int(self._timeout * 1000))
-        sock.setsockopt(zmq.SNDTIMEO, int(self._timeout * 1000))
-        sock.connect(self.zmq_url)
+        try:
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.setsockopt(zmq.RCVTIMEO, ms)
+            sock.setsockopt(zmq.SNDTIMEO, ms)
+            sock.connect(self.zmq_url)
+        except zmq.ZMQError as exc:
+            sock.close(linger=0)  # an open socket would make closing the context wait forever
+            raise InputError(f"--zmq-url {self.zmq_url}: cannot connect ({exc})") from None
         self._socket = sock
 
     def _request(self, *parts: bytes) -> bytes:
@@ -284,7 +327,7 @@ class LiveViewer:
             self._socket = None
         if self._context is not None:
             try:
-                self._context.term()
+                self._context.destroy(linger=0)  # closes every socket: never waits
             except Exception:  # pragma: no cover
                 pass
             self._context = None

@@ -19,7 +19,6 @@ Figs. A.2, A.3 and B.2 do:
 
 from __future__ import annotations
 
-import json
 import multiprocessing as mp
 import os
 import sys
@@ -30,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from feltool.errors import InputError
-from feltool.runs.rundir import load_npz
+from feltool.runs.rundir import damaged, load_npz, read_json
 from feltool.runs.runstate import check_run_dir
 
 __all__ = ["CYCLES", "LiveStream", "load_rollouts", "parse_cycles", "replay", "run_robot",
@@ -224,8 +223,8 @@ def load_rollouts(run_dir: Path, seed: int | None = None, cycles: Sequence[str] 
         experiment's (reduced) model, in [rad]; clip names say the cycle and its feedback.
     """
     run_dir = check_run_dir(run_dir)
-    summary = json.loads((run_dir / "summary.json").read_text())
-    entries = {s["seed"]: s for s in summary.get("seeds", [])}
+    summary = read_json(run_dir / "summary.json")
+    entries = {s["seed"]: s for s in summary.get("seeds", []) if isinstance(s, dict)}
     have = sorted(int(p.stem.removeprefix("seed-"))
                   for p in (run_dir / "traces").glob("seed-*.npz"))
     if seed is None:
@@ -236,8 +235,12 @@ def load_rollouts(run_dir: Path, seed: int | None = None, cycles: Sequence[str] 
     elif seed not in have:
         raise InputError(f"{run_dir}: no traces for seed {seed}; seeds with traces: "
                          + (", ".join(map(str, have)) or "none"))
-    traces = load_npz(run_dir / "traces" / f"seed-{seed}.npz")
-    dt = float(traces["dt"]) if "dt" in traces else 0.01
+    path = run_dir / "traces" / f"seed-{seed}.npz"
+    traces = load_npz(path)
+    try:
+        dt = float(traces["dt"]) if "dt" in traces else 0.01
+    except (TypeError, ValueError):
+        raise damaged(path, "its 'dt' is not a number") from None
     entry = entries.get(seed, {})
     clips = {}
     for which in cycles:
@@ -246,7 +249,10 @@ def load_rollouts(run_dir: Path, seed: int | None = None, cycles: Sequence[str] 
         number = 1 if which == "first" else entry.get("cycles", "?")
         fb = entry.get("fb_initial" if which == "first" else "fb_final")
         name = f"{which} cycle ({number})" + (f", feedback {fb:.3g} N m" if fb is not None else "")
-        clips[name] = (traces[f"{which}_q_system"], traces[f"{which}_q_forward"])
+        q, qf = traces[f"{which}_q_system"], traces.get(f"{which}_q_forward")
+        if q.ndim != 2 or q.dtype.kind != "f" or qf is None or qf.shape != q.shape:
+            raise damaged(path, f"its '{which}' cycle is not two n x nv arrays of angles")
+        clips[name] = (q, qf)
     return seed, dt, clips
 
 
@@ -258,7 +264,7 @@ def write_rollout_html(robot, run_dir: Path, seed: int | None = None,
 
     run_dir = Path(run_dir)
     seed, dt, clips = load_rollouts(run_dir, seed, cycles)
-    summary = json.loads((run_dir / "summary.json").read_text())
+    summary = read_json(run_dir / "summary.json")
     title = f"{summary.get('config', run_dir.name)}, seed {seed}"
     return record_html(robot, {k: v[0] for k, v in clips.items()}, dt,
                        path or run_dir / "rollout.html", title=title,
@@ -289,6 +295,10 @@ def run_robot(run_dir: Path):
     """The (reduced) robot of a run directory, rebuilt from its resolved ``config.yaml``."""
     from feltool.config.files import read_yaml
     from feltool.runs.experiments import build_experiment
+    from feltool.runs.inputs import check_inputs
 
-    path = check_run_dir(run_dir) / "config.yaml"
+    run_dir = check_run_dir(run_dir)
+    if (run_dir / "run.json").is_file():  # the robot it ran, not one edited since
+        check_inputs(read_json(run_dir / "run.json").get("inputs"), run_dir, str(run_dir))
+    path = run_dir / "config.yaml"
     return build_experiment(read_yaml(path), source=path).robot
