@@ -77,3 +77,27 @@ def parse_seeds(spec: str) -> list[int]:
         raise InputError(f"--seeds: seed {', '.join(map(str, repeated[:10]))} given more than "
                          f"once in '{spec}'; each seed runs once")
     return sorted(seeds)
+
+
+def whole_number(value, name: str, lo: int, hi: int) -> int:
+    """``value`` as an int if it is a whole number in ``[lo, hi]`` (an int or a numpy
+    integer; not a bool, a float or a string), else an :class:`InputError` naming ``name``:
+    the public API's arguments meet the bounds the command line and the config meet."""
+    import numbers
+
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise InputError(f"{name}: must be a whole number, got {value!r} "
+                         f"({type(value).__name__})")
+    if not lo <= int(value) <= hi:
+        raise InputError(f"{name}: must be from {lo} to {hi}, got {int(value)}")
+    return int(value)
+
+
+def check_cycles(value, name: str = "cycles") -> int:
+    """A number of learning cycles: 1 to :data:`MAX_CYCLES`."""
+    return whole_number(value, name, 1, MAX_CYCLES)
+
+
+def check_seed(value, name: str = "seed") -> int:
+    """A seed: 0 to :data:`MAX_SEED` (the bounds of ``--seeds`` and the config's ``seeds``)."""
+    return whole_number(value, name, 0, MAX_SEED)

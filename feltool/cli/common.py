@@ -16,6 +16,16 @@ def positive_int(text: str) -> int:
     return value
 
 
+def cycle_count(text: str) -> int:
+    """``--cycles``: a whole number from 1 to the bound every API and config meets."""
+    from feltool.bounds import MAX_CYCLES
+
+    value = positive_int(text)
+    if value > MAX_CYCLES:
+        raise argparse.ArgumentTypeError(f"at most {MAX_CYCLES}, got {value}")
+    return value
+
+
 def progress_mode(args: argparse.Namespace) -> tuple[bool, object]:
     """(progress bar?, stream for progress lines or None): a bar on a terminal, else lines."""
     if getattr(args, "quiet", False) or not args.progress:

@@ -9,6 +9,7 @@ from pathlib import Path
 from feltool.bounds import parse_seeds
 from feltool.cli.common import (
     add_progress_options,
+    cycle_count,
     load_config,
     positive_int,
     print_warnings,
@@ -26,6 +27,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     bar, lines = progress_mode(args)
     resume = args.resume is not None
+    if args.zmq_url is not None:
+        from feltool.viewer.live import check_zmq_url
+
+        check_zmq_url(args.zmq_url)  # a bad address fails before anything runs
     if resume and args.resume is not True and args.out is not None \
             and Path(args.resume) != args.out:
         raise InputError(f"--resume {args.resume} and --out {args.out} name two directories")
@@ -187,7 +192,7 @@ def add_command(sub) -> None:
                    help="continue RUN_DIR (or --out) where it stopped; with CONFIG, only if it is "
                    "the stored run's config and seeds; --cycles may add cycles")
     p.add_argument("--seeds", help="seeds to run, e.g. 0-19 or 0,3,7 (default: the config's)")
-    p.add_argument("--cycles", type=positive_int, help="learning cycles per seed (default: "
+    p.add_argument("--cycles", type=cycle_count, help="learning cycles per seed (default: "
                    "the config's sim.cycles)")
     p.add_argument("--out", type=Path, help="run directory; must be new or empty unless "
                    "--resume (default runs/<name>-<UTC time>)")

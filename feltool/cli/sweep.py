@@ -6,7 +6,13 @@ import argparse
 from pathlib import Path
 
 from feltool.bounds import parse_seeds
-from feltool.cli.common import add_progress_options, positive_int, progress_mode, subcommand
+from feltool.cli.common import (
+    add_progress_options,
+    cycle_count,
+    positive_int,
+    progress_mode,
+    subcommand,
+)
 from feltool.errors import InputError
 from feltool.runs.checkpoint import Interrupted
 
@@ -60,7 +66,7 @@ def add_command(sub) -> None:
     p.add_argument("--grid", action="append", metavar="A.B.C=V1,V2",
                    help="a swept field and its values (repeatable; the product is run)")
     p.add_argument("--seeds", help="seeds per point, e.g. 0-9 (default: the config's)")
-    p.add_argument("--cycles", type=positive_int, help="learning cycles per seed")
+    p.add_argument("--cycles", type=cycle_count, help="learning cycles per seed")
     p.add_argument("--out", type=Path, help="sweep directory, new or empty (default "
                    "runs/<name>-sweep-<UTC time>)")
     p.add_argument("--workers", type=positive_int, help="local processes (default: all cores)")

@@ -12,10 +12,11 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from feltool.bounds import check_cycles, check_seed
 from feltool.control.closed_loop import ClosedLoop, CycleLog
 from feltool.dynamics.interface import Dynamics, make_dynamics
 from feltool.engines.compiled.engine import compiled_engine, compiled_runner
@@ -29,15 +30,14 @@ from feltool.engines.python import (
     per_cycle,
     per_step_cycle,
 )
+from feltool.errors import InputError
+from feltool.experiment.experiment import Experiment
 from feltool.learning.fel import FEL_UPDATES
 from feltool.motion.motion import Motion, varying_phase
 from feltool.plant.events import changed_model, plant_for_cycle
 from feltool.runs.checkpoint import Checkpointer
 from feltool.runs.divergence import explain as explain_divergence
 from feltool.runs.observers import Callback, SeedCheckpoints, SeedRecord
-
-if TYPE_CHECKING:
-    from feltool.experiment.experiment import Experiment
 
 
 @dataclass
@@ -96,7 +96,11 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             states ``log.q`` (n_steps x nv, [rad]), its forward (desired) trajectory ``Qd``
             (n_steps x nv, [rad]) and fb as for ``progress`` (the live viewer streams these).
     """
-    cycles = cycles or exp.config.sim.cycles
+    if not isinstance(exp, Experiment):
+        raise InputError(f"exp: must be an Experiment (feltool.load_experiment), got "
+                         f"{type(exp).__name__}")
+    seed = check_seed(seed)  # the bounds the command line and the config's seeds meet
+    cycles = exp.config.sim.cycles if cycles is None else check_cycles(cycles)
     state = initial_state(exp, seed)
     t_build = time.perf_counter()
     run_cycle = _cycle_runner(exp, state.theta, seed)  # the compiled engine compiles here
