@@ -127,6 +127,7 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
         lock = RunLock(out_dir).acquire()
     except WriteError as exc:
         raise exc.keeping(NOTHING_WRITTEN, 2) from None
+    ours = False  # whether what is in out_dir is this command's (to remove if it fails here)
     try:
         try:
             done = None
@@ -135,9 +136,11 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
                 done = _finished_seeds(out_dir, seeds, cycles)
                 remove_stale_temporaries(out_dir)
                 _record_cycles(out_dir, exp, meta, cycles)
+            else:
+                refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")  # a race
+                ours = True
             compile_s = prepare_engine(exp, raw)
             if not resume:
-                refuse_existing(out_dir, "run.json", f"feltool run --resume {out_dir}")  # a race
                 atomic_write(out_dir / "config.yaml",
                              config_to_yaml(cfg, exp.source.parent if exp.source else None))
                 write_json(out_dir / "run.json", {
@@ -147,7 +150,7 @@ def run_experiment(exp: Experiment, raw: dict, out_dir: Path, seeds: list[int] |
             set_state(out_dir, "running", cycles=cycles)
         except BaseException as exc:
             lock.release()
-            if fresh:
+            if ours:
                 discard_new(out_dir, remove_dir=made)
             if isinstance(exc, WriteError):
                 raise exc.keeping(NOTHING_WRITTEN if fresh else "the run is as it was", 2) \

@@ -108,17 +108,19 @@ def run_sweep(config: str | Path | None, grid: dict[str, list] | None, out_dir: 
         lock = RunLock(out_dir).acquire()
     except WriteError as exc:
         raise exc.keeping(NOTHING_WRITTEN, 2) from None
+    ours = False  # whether what is in out_dir is this command's (to remove if it fails here)
     try:
         try:
             if not resume:
                 refuse_existing(out_dir, "sweep.json", hint)  # another process got here first
+                ours = True
                 write_json(meta_path, meta)
             else:
                 remove_stale_temporaries(out_dir)
             set_state(out_dir, "running", "sweep.json")
         except BaseException as exc:
             lock.release()
-            if not resume:
+            if ours:
                 discard_new(out_dir, remove_dir=made)
             if isinstance(exc, WriteError):
                 raise exc.keeping(NOTHING_WRITTEN if not resume else "the sweep is as it was",
