@@ -118,13 +118,19 @@ def record_inputs(exp: Experiment, run_dir: Path | None = None) -> dict[str, Any
     """The inputs of ``exp`` as ``run.json`` keeps them; with ``run_dir``, the files the
     config names outside a package are copied into ``run_dir/inputs/`` (at most
     :data:`~feltool.bounds.MAX_URDF_BYTES` each)."""
+    return record_files(input_files(exp), exp.source, run_dir)
+
+
+def record_files(files: dict[Path, str], config: Path | None,
+                 run_dir: Path | None = None) -> dict[str, Any]:
+    """The record of ``files`` (``{path: role}``, :func:`input_files`; a sweep's points'
+    together) and of the ``config`` file; see :func:`record_inputs`."""
     record: dict[str, Any] = {"config": None, "files": []}
-    if exp.source is not None and Path(exp.source).is_file():
-        size, sha = digest(Path(exp.source))
-        record["config"] = {"path": str(Path(exp.source).resolve()), "size": size,
-                            "sha256": sha}
+    if config is not None and Path(config).is_file():
+        size, sha = digest(Path(config))
+        record["config"] = {"path": str(Path(config).resolve()), "size": size, "sha256": sha}
     taken: set[str] = set()
-    for path, role in input_files(exp).items():
+    for path, role in files.items():
         size, sha = digest(path)
         entry = {"role": role, "path": str(path), "size": size, "sha256": sha, "copy": None}
         if run_dir is not None and not role.startswith("mesh") and size <= MAX_URDF_BYTES \
@@ -140,15 +146,6 @@ def record_inputs(exp: Experiment, run_dir: Path | None = None) -> dict[str, Any
             entry["copy"] = f"{INPUTS_DIR}/{name}"
         record["files"].append(entry)
     return record
-
-
-def merge(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """One record of several experiments' inputs (a sweep's points), each file once."""
-    files: dict[str, dict] = {}
-    for r in records:
-        for entry in r["files"]:
-            files.setdefault(entry["path"], entry)
-    return {"config": records[0]["config"] if records else None, "files": list(files.values())}
 
 
 def fingerprints(record: dict[str, Any] | None) -> tuple[tuple[str, str, str], ...]:

@@ -35,7 +35,7 @@ from feltool.files import WriteError, remove_stale_temporaries
 from feltool.runs.checkpoint import Interrupted, remove_empty
 from feltool.runs.executors import Task
 from feltool.runs.experiments import build_experiment, resolve_config_path
-from feltool.runs.inputs import check_inputs, fingerprints, input_files, merge, record_inputs
+from feltool.runs.inputs import check_inputs, fingerprints, input_files, record_files
 from feltool.runs.rundir import atomic_write, write_by, write_json
 from feltool.runs.runner import (
     CHECKPOINT_EVERY,
@@ -161,13 +161,16 @@ def _new_sweep(config, grid, seeds, cycles) -> dict[str, Any]:
                                           "sweep: {grid: {a.b: [1, 2]}} block")], str(source))
     points = grid_points(full_grid)
     # Validate every point before anything runs: a bad value fails fast, naming its point.
-    exps = [_build(raw, point, source, cycles, i) for i, point in enumerate(points)]
-    first = exps[0]
+    first, files = None, {}
+    for i, point in enumerate(points):
+        exp = _build(raw, point, source, cycles, i)
+        first = first or exp
+        files.update({p: r for p, r in input_files(exp).items() if p not in files})
     meta = {"source": str(Path(source).resolve()), "raw": raw, "grid": full_grid,
             "points": points,
             "seeds": list(seeds if seeds is not None else first.config.seed_list),
             "cycles": cycles or first.config.sim.cycles,
-            "inputs": merge([record_inputs(e) for e in exps])}
+            "inputs": record_files(files, source)}
     return meta
 
 
