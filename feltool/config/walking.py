@@ -116,6 +116,11 @@ class WalkingConfig(Strict):
     scuff_exempt_m: NonNegFloat | None = Field(None, description="Physical walker: the swing "
         "foot may be below the ground within this horizontal distance of the stance foot, in "
         "[m]; default 0.05 for a walker without knees (one legs pair), 0 with knees.")
+    scuff_behind: bool | None = Field(None, description="Physical walker: the classic "
+        "compass-gait convention: the swing foot's scuffing is ignored while it is behind the "
+        "stance foot (a knee-less leg cannot clear the ground there; such sub-steps are counted "
+        "and reported, not a stop); default true for a walker without knees (one legs pair), "
+        "false with knees.")
     clearance_tol_m: NonNegFloat = Field(0.001, description="Physical walker: how far the "
         "swing foot may graze below the ground outside the scuffing zone (e.g. the trailing "
         "foot just after lift-off) before the seed is not walking, in [m]; 0 = strict.")
@@ -197,6 +202,13 @@ class WalkingConfig(Strict):
         if self.scuff_exempt_m is not None:
             return self.scuff_exempt_m
         return 0.05 if self.legs is not None and len(self.legs) == 1 else 0.0
+
+    @property
+    def scuffs_behind(self) -> bool:
+        """Whether scuffing behind the stance foot is ignored (default: knee-less walkers)."""
+        if self.scuff_behind is not None:
+            return self.scuff_behind
+        return self.legs is not None and len(self.legs) == 1
 
 
 class ActuationConfig(Strict):

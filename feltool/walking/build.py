@@ -125,7 +125,7 @@ def physical_loop(cfg: ExperimentConfig, wm: WalkerModel, law: FeedbackLaw, dyna
     m = wm.model
     effort = np.array([m.effortLimit[i] for i in range(m.nv)])
     checks = ContactChecks(w.friction, w.normal_force_min, w.scuff_exempt, None,
-                           cfg.sim.torque_limits, w.clearance_tol_m)
+                           cfg.sim.torque_limits, w.clearance_tol_m, w.scuffs_behind)
     fall_row, fall_max = None, np.inf
     if w.fall is not None:
         fall_row = np.zeros(m.nv)

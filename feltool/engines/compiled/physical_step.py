@@ -210,6 +210,8 @@ class Step:
         sp = kin.feet[W.swing](q1, v1)[0]
         ahead = sp[0] - anchor[0]
         exempt = ca.fabs(ahead) < chk.scuff_exempt
+        if chk.scuff_behind:  # the compass-gait convention: no stop behind the stance foot
+            exempt = ca.logic_or(exempt, ahead <= 0.0)
         landing = ca.logic_and(ca.logic_and(1 - exempt, ahead > 0.0),
                                ca.logic_and(z0 > 0.0, sp[1] <= 0.0))
         count = ca.logic_and(1 - landing, 1 - exempt)
