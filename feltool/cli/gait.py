@@ -95,6 +95,9 @@ def _print_verification(check, seconds: float) -> None:
               f"{check.max_friction_ratio:.3g}   impulse ratio {check.max_impulse_ratio:.3g}   "
               f"max torque {check.max_torque:.4g} N m   lowest swing foot "
               f"{check.min_clearance_m * 1e3:.3g} mm")
+    if check.scuffs:
+        print(f"  compass-gait convention (walking.scuff_behind): the swing foot scuffed behind "
+              f"the stance foot at {check.scuffs} control steps (ignored)")
     if p:
         print(f"  Poincaré: fixed point residual {p.get('fixed_point_residual', float('nan')):.2g}"
               + (f", spectral radius {p['spectral_radius']:.3g}"

@@ -53,6 +53,9 @@ class Verification:
         frames: The walk's configurations in the world ``(n, nq)``, one per control step: the
             physical legs keep their names and the base moves on by each step's length (for
             viewing; the loop itself relabels and re-anchors at every touchdown).
+        scuffs: Control steps that started with the swing foot below the ground behind the
+            stance foot, ignored by the compass-gait convention (``walking.scuff_behind``) [-].
+        q_end, v_end: The state at the end of the walk.
     """
 
     walked: bool
@@ -68,6 +71,9 @@ class Verification:
     feedback: float = np.nan
     poincare: dict[str, Any] = field(default_factory=dict)
     frames: np.ndarray | None = None
+    scuffs: int = 0
+    q_end: np.ndarray | None = None
+    v_end: np.ndarray | None = None
 
     @property
     def stable(self) -> bool:
@@ -91,11 +97,22 @@ def verify_design(exp, steps: int = 20, poincare_analysis: bool = True) -> Verif
     P, Pv, Pa = exp.primitives.desired(exp.theta_demo)
     q, v = hyb.initial_state(P, Pv)
     mg = exp.robot.total_mass * float(np.linalg.norm(exp.robot.model.gravity.linear))
-    done, stats, frames, x0, log = 0, [], [], 0.0, None
+    fast = walk_compiled(exp, q, v, steps, mg)
+    if fast is not None:
+        if poincare_analysis:
+            fast.poincare = poincare(exp, exp.theta_demo, fast.q_end, fast.v_end)
+            p = fast.poincare
+            if p.get("fixed_point_found") and p.get("impacts_per_cycle"):
+                n = p["impacts_per_cycle"]  # the periodic gait's own step (touchdowns located
+                fast.step_length_m = p["stride_length_m"] / n  # within the sub-step)
+                fast.step_duration_s = p["stride_length_m"] / p["speed_m_per_s"] / n
+        return fast
+    done, stats, frames, x0, log, rows_q = 0, [], [], 0.0, None, []
     for _ in range(-(-steps // spc)):
         log = hyb.run_cycle(exp.dynamics, q, v, P, Pv, Pa)
         starts = [0] + [k for k, _, _ in log.impacts] + [len(log.q)]
         for i, (a, b) in enumerate(zip(starts[:-1], starts[1:])):
+            rows_q += list(log.q[a:b])
             for qk in log.q[a:b]:  # the world's view: legs by their own names, moving on
                 if (done + i) % 2:
                     qk, _ = W.walker.relabel(qk, np.zeros(exp.robot.model.nv))
@@ -108,16 +125,92 @@ def verify_design(exp, steps: int = 20, poincare_analysis: bool = True) -> Verif
         done += len(log.impacts)
         if log.fall:
             return Verification(False, done, log.fall, **_extremes(stats, mg),
-                                frames=np.array(frames))
+                                frames=np.array(frames),
+                                scuffs=_scuffs(W, exp.robot.model, np.array(rows_q)))
         q, v = log.q_end, log.v_end
     last = log.steps[:len(log.impacts)]
     out = Verification(True, done, None, **_extremes(stats, mg),
                        step_length_m=float(np.mean([s.length for s in last])),
                        step_duration_s=float(np.mean([s.duration for s in last])),
-                       feedback=float(np.abs(log.u_fb).mean(0).sum()), frames=np.array(frames))
+                       feedback=float(np.abs(log.u_fb).mean(0).sum()), frames=np.array(frames),
+                       scuffs=_scuffs(W, exp.robot.model, np.array(rows_q)), q_end=q, v_end=v)
     if poincare_analysis:
         out.poincare = poincare(exp, exp.theta_demo, q, v)
     return out
+
+
+def walk_compiled(exp, q: np.ndarray, v: np.ndarray, steps: int,
+                  mg: float) -> Verification | None:
+    """:func:`verify_design`'s walk on the experiment's compiled engine (one traced call per
+    cycle: its contact statistics and its control steps' states), or None when the experiment
+    has no compiled physical engine or a cycle stops (the Python loop then walks it, for its
+    message and numbers). Scuffs behind the stance foot are counted at the control steps."""
+    from feltool.engines.compiled.engine import compiled_engine
+    from feltool.engines.compiled.graph import SCALARS
+    from feltool.engines.compiled.physical import CONTACT, row_fields, unpack
+
+    if exp.engine != "compiled" or (engine := compiled_engine(exp)) is None \
+            or not engine.physical:
+        return None
+    hyb, theta = exp.hybrid, exp.theta_demo
+    W = hyb.walker
+    model, nv, spc = exp.robot.model, engine.lay.nv, W.steps_per_cycle
+    k = 4 * nv + len(SCALARS)
+    data = engine.data(theta)
+    frames, rows_q, rows_u, contacts, x0, done, fb = [], [], [], [], 0.0, 0, 0.0
+    for _ in range(-(-steps // spc)):
+        state0 = engine.state(theta, q, v)
+        state, stats, rows = (np.asarray(x) for x in engine.trace(0, state0, data)[:3])
+        stats = stats.ravel()
+        if stats[k] != 0 or not np.isfinite(state).all():
+            return None
+        m = int(round(stats[k + 1]))
+        rw = unpack(rows, row_fields(nv))
+        Q, U = rw["q"][:, :m].T, rw["tau"][:, :m].T
+        at = [int(round(a)) for a in stats[k + 2:k + 2 + spc]]
+        lengths = stats[k + 2 + spc:k + 2 + 2 * spc]
+        contacts.append(dict(zip(CONTACT, stats[k + 2 + 2 * spc:].tolist())))
+        starts = [0] + at
+        for i, (a, b) in enumerate(zip(starts, starts[1:])):
+            for qk in Q[a:b]:
+                rows_q.append(qk)
+                if (done + i) % 2:
+                    qk, _ = W.walker.relabel(qk, np.zeros(nv))
+                qk = qk.copy()
+                qk[W.base_q[0]] += x0
+                frames.append(qk)
+            x0 += float(lengths[i])
+        rows_u.append(U[:, W.motor_v])
+        done += spc
+        fb = float(np.abs(stats[:nv]).sum())
+        q, v = state[-2 * nv:-nv].copy(), state[-nv:].copy()
+    pick = lambda key, f: f(c[key] for c in contacts)  # noqa: E731
+    out = Verification(
+        True, done, None, min_normal_force_mg=pick("min_normal_force", min) / mg,
+        max_friction_ratio=pick("max_friction_ratio", max),
+        max_impulse_ratio=pick("max_impulse_ratio", max),
+        min_clearance_m=min((c["min_clearance"] for c in contacts
+                             if np.isfinite(c["min_clearance"])), default=np.nan),
+        max_torque=float(np.abs(np.vstack(rows_u)).max()) if rows_u else np.nan,
+        step_length_m=contacts[-1]["step_length"],
+        step_duration_s=contacts[-1]["duration"] / spc, feedback=fb,
+        frames=np.array(frames), q_end=q, v_end=v)
+    out.scuffs = _scuffs(W, model, np.array(rows_q))
+    return out
+
+
+def _scuffs(W, model, Q: np.ndarray) -> int:
+    """Control steps whose state has the swing foot below the ground behind the stance foot
+    (0 unless the compass-gait convention ``walking.scuff_behind`` lets the walk go on)."""
+    if not W.checks.scuff_behind or not len(Q):
+        return 0
+    data = model.createData()
+    count = 0
+    for q in Q:
+        pin.framesForwardKinematics(model, data, q)
+        stance, swing = (W.walker.foot_position(data, f) for f in (W.stance, W.swing))
+        count += int(swing[-1] < 0.0 and swing[0] <= stance[0])
+    return count
 
 
 def _extremes(stats: list, mg: float) -> dict[str, float]:
@@ -154,21 +247,55 @@ def periodic_orbit(exp, x_star: np.ndarray) -> Orbit:
     control steps; the steps after the first in the first step's labels (relabelled back)."""
     hyb, W = exp.hybrid, exp.hybrid.walker
     model = exp.robot.model
-    P, Pv, Pa = exp.primitives.desired(exp.theta_demo)
-    log = hyb.run_cycle(exp.dynamics, x_star[:model.nq], x_star[model.nq:], P, Pv, Pa)
-    if log.fall:  # a fixed point that was found walking: only a changed world gets here
-        raise GaitDesignError(f"the gait's fixed point does not walk: {log.fall}")
-    starts = [0] + [k for k, _, _ in log.impacts]
+    cycle = _traced_cycle(exp, x_star[:model.nq], x_star[model.nq:])
+    if cycle is None:
+        P, Pv, Pa = exp.primitives.desired(exp.theta_demo)
+        log = hyb.run_cycle(exp.dynamics, x_star[:model.nq], x_star[model.nq:], P, Pv, Pa)
+        if log.fall:  # a fixed point that was found walking: only a changed world gets here
+            raise GaitDesignError(f"the gait's fixed point does not walk: {log.fall}")
+        at = [k for k, _, _ in log.impacts]
+        cycle = (log.q, log.v, [W.B @ tau for tau in log.tau], log.u_fb, at,
+                 np.asarray(log.stance))
+    Qs, Vs, Taus, u_fb, at, labels = cycle
+    starts = [0] + list(at)
     counts = [b - a for a, b in zip(starts[:-1], starts[1:])]
     neutral = pin.neutral(model)
-    Q, V, A = (np.zeros((len(log.q), model.nv)) for _ in range(3))
-    for k, (q, v, tau) in enumerate(zip(log.q, log.v, log.tau)):
-        a = W.contact.stance(q, v, W.B @ tau, W.stance).a
-        if log.stance[k]:  # a step in the other labels: back to the first step's
+    Q, V, A = (np.zeros((len(Qs), model.nv)) for _ in range(3))
+    for k, (q, v, tau) in enumerate(zip(Qs, Vs, Taus)):
+        a = W.contact.stance(q, v, tau, W.stance).a
+        if labels[k]:  # a step in the other labels: back to the first step's
             q, v = W.walker.relabel(q, v)
             _, a = W.walker.relabel(q, a)
         Q[k], V[k], A[k] = pin.difference(model, neutral, q), v, a
-    return Orbit(Q, V, A, counts, float(np.abs(log.u_fb).mean(0).sum()))
+    return Orbit(Q, V, A, counts, float(np.abs(u_fb).mean(0).sum()))
+
+
+def _traced_cycle(exp, q: np.ndarray, v: np.ndarray):
+    """One cycle from ``(q, v)`` on the compiled engine: its control steps' ``q, v``, applied
+    generalized forces, feedback, touchdown steps and step labels (1 in every second step);
+    None without a compiled physical engine or when the cycle stops."""
+    from feltool.engines.compiled.engine import compiled_engine
+    from feltool.engines.compiled.graph import SCALARS
+    from feltool.engines.compiled.physical import row_fields, unpack
+
+    if exp.engine != "compiled" or (engine := compiled_engine(exp)) is None \
+            or not engine.physical:
+        return None
+    nv, spc = engine.lay.nv, exp.hybrid.walker.steps_per_cycle
+    k = 4 * nv + len(SCALARS)
+    theta = exp.theta_demo
+    _, stats, rows = (np.asarray(x) for x in engine.trace(0, engine.state(theta, q, v),
+                                                          engine.data(theta))[:3])
+    stats = stats.ravel()
+    if stats[k] != 0:
+        return None
+    m = int(round(stats[k + 1]))
+    rw = unpack(rows, row_fields(nv))
+    at = [int(round(a)) for a in stats[k + 2:k + 2 + spc]]
+    labels = np.zeros(m, dtype=int)
+    for i, (a, b) in enumerate(zip([0] + at, at)):
+        labels[a:b] = i % 2
+    return rw["q"][:, :m].T, rw["v"][:, :m].T, rw["tau"][:, :m].T, rw["U"][:, :m].T, at, labels
 
 
 def orbit_config(raw: dict[str, Any], exp, orbit: Orbit) -> dict[str, Any]:

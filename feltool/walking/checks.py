@@ -25,7 +25,7 @@ class ContactChecks:
         clearance_tol: How far the swing foot may graze below the ground outside the scuffing
             zone (e.g. the trailing foot just after lift-off), in [m].
         scuff_behind: The classic compass-gait convention: the swing foot below the ground while
-            it is behind the stance foot is not a stop (counted in :attr:`StepStats.scuffs`).
+            it is behind the stance foot is not a stop (feltool gait counts and reports it).
     """
 
     friction: float = 0.7
@@ -53,8 +53,6 @@ class StepStats:
         length: Touchdown position of the swing foot ahead of the stance foot [m].
         duration: Step duration [s].
         touchdown_height: The swing foot's height at the located touchdown [m].
-        scuffs: Sub-steps that ended with the swing foot below the ground behind the stance
-            foot, ignored by the compass-gait convention (``ContactChecks.scuff_behind``) [-].
     """
 
     min_normal_force: float = np.inf
@@ -68,7 +66,6 @@ class StepStats:
     length: float = np.nan
     duration: float = 0.0
     touchdown_height: float = np.nan
-    scuffs: int = 0
 
 
 class NotWalking(Exception):

@@ -489,9 +489,7 @@ class PhysicalLoop:
         exempt = abs(ahead) < chk.scuff_exempt
         landing = not exempt and ahead > 0.0 and z0 > 0.0 and sz <= 0.0
         if not landing:
-            if not exempt and chk.scuff_behind and ahead <= 0.0:
-                st.scuffs += int(sz < 0.0)  # the compass-gait convention: counted, no stop
-            elif not exempt:
+            if not exempt and not (chk.scuff_behind and ahead <= 0.0):  # (compass gaits)
                 st.min_clearance = min(st.min_clearance, float(sz))
                 if sz < -chk.clearance_tol:
                     where = "behind" if ahead <= 0.0 else "ahead of"

@@ -50,7 +50,8 @@ BLOCK = 40
 def row_fields(nv: int) -> list[tuple[str, int]]:
     """A control step's row of the trace: its fields in order, with their sizes."""
     return [("valid", 1), ("q", nv), ("v", nv), ("qd", nv), ("r", nv), ("U", nv),
-            ("Urows", nv), ("Uerr", nv), ("err", 1), ("work", 1), ("impact", 1), ("length", 1)]
+            ("Urows", nv), ("Uerr", nv), ("err", 1), ("work", 1), ("impact", 1), ("length", 1),
+            ("tau", nv)]
 
 
 def unpack(vec, fields) -> dict:
@@ -142,7 +143,7 @@ class PhysicalGraph:
                                                   if self.inverse_dynamics else Uerr, jj, srows)
         S_new = ca.vertcat(*[new[name] for name in self.sizes])
         row = ca.vertcat(1, st["q"], st["v"], qd, r, U, Urows, Uerr, err, work, impact,
-                         impact * length)  # (row_fields)
+                         impact * length, tau)  # (row_fields)
         args = [S, consts, kp, kd, targets, srows]
         body = ca.Function("phys_body", args, [S_new, row])
         idle = ca.Function("phys_idle", args, [S, ca.DM.zeros(self.row_size)])
