@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
-from scipy import linalg, signal
+from scipy import linalg
 
 if TYPE_CHECKING:
     from feltool.config.experiment import ExperimentConfig
@@ -69,6 +69,8 @@ def q_filter(U: np.ndarray, cutoff_hz: float | None, rate_hz: float, order: int 
     """
     if cutoff_hz is None or cutoff_hz >= 0.5 * rate_hz:
         return np.array(U, dtype=float, copy=True)
+    from scipy import signal  # (a third of a second to import: only when filtering)
+
     b, a = signal.butter(order, cutoff_hz / (0.5 * rate_hz))
     n = len(U)
     ext = np.concatenate([U, U, U], axis=0)

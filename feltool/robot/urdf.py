@@ -39,10 +39,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yourdfpy
 
 from feltool.bounds import MAX_URDF_LINKS
 from feltool.errors import RobotError
+from feltool.robot.deferred import yourdfpy
 from feltool.robot.physical import inertia_problem, mass_problem
 
 WORLD = "world"
