@@ -82,7 +82,8 @@ class Verification:
         return self.walked and bool(p.get("fixed_point_found")) and p["spectral_radius"] < 1.0
 
 
-def verify_design(exp, steps: int = 20, poincare_analysis: bool = True) -> Verification:
+def verify_design(exp, steps: int = 20, poincare_analysis: bool = True,
+                  spectrum: bool = True) -> Verification:
     """Walk the experiment's design (``exp.theta_demo``, nothing learned) for ``steps`` steps
     from its designed start, with the contact checks; then its Poincaré fixed point.
 
@@ -90,6 +91,8 @@ def verify_design(exp, steps: int = 20, poincare_analysis: bool = True) -> Verif
         exp: A built physical walker experiment (:class:`feltool.experiment.experiment.Experiment`).
         steps: Steps to walk [-] (rounded up to whole cycles).
         poincare_analysis: Find the fixed point and its spectral radius after the walk.
+        spectrum: With the fixed point, its eigenvalues (else only the fixed point: its
+            ``spectral_radius`` is not known and :attr:`Verification.stable` is False).
     """
     hyb = exp.hybrid
     W = hyb.walker
@@ -100,7 +103,8 @@ def verify_design(exp, steps: int = 20, poincare_analysis: bool = True) -> Verif
     fast = walk_compiled(exp, q, v, steps, mg)
     if fast is not None:
         if poincare_analysis:
-            fast.poincare = poincare(exp, exp.theta_demo, fast.q_end, fast.v_end)
+            fast.poincare = poincare(exp, exp.theta_demo, fast.q_end, fast.v_end,
+                                     spectrum=spectrum)
             p = fast.poincare
             if p.get("fixed_point_found") and p.get("impacts_per_cycle"):
                 n = p["impacts_per_cycle"]  # the periodic gait's own step (touchdowns located
@@ -135,7 +139,7 @@ def verify_design(exp, steps: int = 20, poincare_analysis: bool = True) -> Verif
                        feedback=float(np.abs(log.u_fb).mean(0).sum()), frames=np.array(frames),
                        scuffs=_scuffs(W, exp.robot.model, np.array(rows_q)), q_end=q, v_end=v)
     if poincare_analysis:
-        out.poincare = poincare(exp, exp.theta_demo, q, v)
+        out.poincare = poincare(exp, exp.theta_demo, q, v, spectrum=spectrum)
     return out
 
 
@@ -345,8 +349,8 @@ def close_on_orbit(raw: dict[str, Any], source: Path | None, build, steps: int =
     current = raw
     for _ in range(rounds):
         exp = build(current, source)
-        check = verify_design(exp, steps)
-        if not check.stable:
+        check = verify_design(exp, steps, spectrum=False)  # (the closed config's is checked)
+        if not check.walked or not check.poincare.get("fixed_point_found"):
             raise GaitNotWalking(check)
         orbit = periodic_orbit(exp, np.array(check.poincare["fixed_point_q"]
                                              + check.poincare["fixed_point_v"]))

@@ -21,7 +21,8 @@ from feltool.engines.compiled.engine import compiled_engine, compiled_runner
 
 
 def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
-             iterations: int = 10, newton: int = 6, eps: float = 1e-6) -> dict[str, Any]:
+             iterations: int = 10, newton: int = 6, eps: float = 1e-6,
+             spectrum: bool = True) -> dict[str, Any]:
     """Fixed point, Jacobian eigenvalues, stride length [m] and speed [m/s] of a walker's gait.
 
     Args:
@@ -29,6 +30,8 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
         theta: RMP parameters (held fixed).
         q, v: A start state (e.g. the end of learning) at stance label 0.
         plant: The simulated world (default the known model).
+        spectrum: Also the eigenvalues, stride and speed at the fixed point (else only the
+            fixed point and its residual).
     """
     hyb = exp.hybrid
     plant = plant or exp.dynamics
@@ -55,6 +58,11 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
             break
         D = _jacobian(step, x, eps)
         x = x - np.linalg.solve(D - np.eye(len(x)), r)
+    if not spectrum:
+        fx = step(x)[0]
+        residual = np.inf if fx is None else float(np.abs(fx - x).max())
+        return {"fixed_point_found": residual < 1e-6, "fixed_point_residual": residual,
+                "fixed_point_q": x[:nv].tolist(), "fixed_point_v": x[nv:].tolist()}
     log = hyb.run_cycle(plant, x[:nv], x[nv:], P, Pv, Pa)  # its touchdowns and steps
     fx = np.concatenate([log.q_end, log.v_end]) if step is python_step else step(x)[0]
     residual = float(np.abs(fx - x).max())

@@ -29,7 +29,12 @@ from feltool.engines.compiled.graph import (
     parameters,
     per_step_cycle_function,
 )
-from feltool.engines.compiled.library import CYCLES_PER_CALL, compile_functions, note_once
+from feltool.engines.compiled.library import (
+    CYCLES_PER_CALL,
+    cached,
+    compile_functions,
+    note_once,
+)
 from feltool.engines.compiled.support import check_supported
 from feltool.engines.outcome import CycleOutcome
 from feltool.engines.python import hybrid_cycle, limit_cycle_states
@@ -51,6 +56,22 @@ def _fingerprint(plant) -> bytes:
         if hasattr(plant, key):
             parts.append(np.asarray(getattr(plant, key), float))
     return np.concatenate(parts).tobytes()
+
+
+def _cache_key(exp: Experiment, plants: list) -> str:
+    """What determines an experiment's cycle graphs, as text: its validated config (every
+    field, the demos included), its robot model (Pinocchio's serialization: joints, placements,
+    inertias, frames, limits) and its worlds' dynamics (:func:`_fingerprint`). Together with
+    feltool's own source (:func:`feltool.engines.compiled.library.source_digest`) it names the
+    compiled library, which is then loaded without building the graphs."""
+    import hashlib
+
+    digest = hashlib.sha256(exp.config.model_dump_json().encode())
+    digest.update(exp.robot.model.saveToString().encode())
+    for plant in plants:
+        digest.update(_fingerprint(plant))
+        digest.update(getattr(plant, "rigid", plant).model.saveToString().encode())
+    return digest.hexdigest()
 
 
 def worlds(exp: Experiment) -> list:
@@ -82,9 +103,28 @@ class CompiledEngine:
         plants = worlds(exp)
         self._worlds = {_fingerprint(p): w for w, p in enumerate(plants)}
         self._world_of: dict[int, tuple] = {}
-        self.per_step = exp.config.learning.step == "per_step"
         self.physical = exp.config.walking is not None and exp.config.walking.physical
         self.walker = exp.hybrid is not None and not self.physical
+        self.per_step = exp.config.learning.step == "per_step"
+        key = _cache_key(exp, plants) if compile else None
+        fns = cached(key, self._names(len(plants))) if key is not None else None
+        if fns is None:
+            fns = self._build(exp, plants)
+            if compile:
+                fns = compile_functions(fns, vm_fallback=vm_fallback, key=key)
+        self.functions = fns
+        if fns is None:
+            return
+        self._finish(exp)
+
+    def _names(self, n_worlds: int) -> list[str]:
+        """The names of the functions :meth:`_build` makes, in order."""
+        kinds = ("cycle", "trace") if self.per_step or self.physical else \
+            ("cycle", "trace", "many")
+        return [f"{kind}_{w}" for w in range(n_worlds) for kind in kinds]
+
+    def _build(self, exp: Experiment, plants: list) -> list:
+        """The cycle graphs of every world (CasADi functions, not compiled)."""
         fns = []
         for w, plant in enumerate(plants):
             if self.physical:
@@ -105,11 +145,10 @@ class CompiledEngine:
                 fns += [cycle_function(exp, plant, False, f"cycle_{w}"),
                         cycle_function(exp, plant, True, f"trace_{w}"),
                         many_function(exp, plant, CYCLES_PER_CALL, f"many_{w}")]
-        if compile:
-            fns = compile_functions(fns, vm_fallback=vm_fallback)
-        self.functions = fns
-        if fns is None:
-            return
+        return fns
+
+    def _finish(self, exp: Experiment) -> None:
+        fns = self.functions
         self._calls = [BufferedCall(f, keep=(1, 2)) for f in fns]
         self._n_fns = 2 if self.per_step or self.physical else 3
         self.params = parameters(exp)

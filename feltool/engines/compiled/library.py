@@ -35,8 +35,47 @@ def c_compiler() -> str | None:
     return shutil.which(os.environ.get("CC") or "cc") or shutil.which("gcc")
 
 
+def source_digest() -> str:
+    """SHA-256 of feltool's own source (every ``.py`` file of the package) and of the versions
+    of CasADi, Pinocchio and numpy: part of every :func:`cached` key, so a changed feltool
+    never loads a library built by another."""
+    global _SOURCE
+    if _SOURCE is None:
+        import numpy as np
+        import pinocchio as pin
+
+        root = Path(__file__).resolve().parents[2]
+        digest = hashlib.sha256(f"{ca.__version__} {pin.__version__} {np.__version__}".encode())
+        for path in sorted(root.rglob("*.py")):
+            digest.update(path.relative_to(root).as_posix().encode())
+            digest.update(path.read_bytes())
+        _SOURCE = digest.hexdigest()
+    return _SOURCE
+
+
+_SOURCE: str | None = None
+
+
+def library_name(key: str) -> str:
+    """The cached library's file stem for a key (:func:`cached`)."""
+    digest = hashlib.sha256((source_digest() + key).encode())
+    return f"feltool_cycle_k{digest.hexdigest()[:20]}"
+
+
+def cached(key: str, names: list[str], directory: Path | None = None) -> list[ca.Function] | None:
+    """The functions ``names`` of the library compiled for ``key`` (a string that determines
+    the graphs: :meth:`feltool.engines.compiled.engine.CompiledEngine` makes it from the
+    experiment's validated config, its robot model and its worlds), or None when there is none
+    (or it does not match its record): the graphs need not even be built to find it."""
+    lib = (directory or cache_dir()) / f"{library_name(key)}.so"
+    if not verified(lib):
+        return None
+    return [ca.external(name, str(lib)) for name in names]
+
+
 def compile_functions(fns: list[ca.Function], directory: Path | None = None,
-                      vm_fallback: bool = True) -> list[ca.Function] | None:
+                      vm_fallback: bool = True, key: str | None = None
+                      ) -> list[ca.Function] | None:
     """Generate ``fns`` to one C file, compile it with the system compiler and load the
     functions from it; the library is cached under a hash of the graphs and the CasADi version.
     Without a working compiler: ``fns`` themselves (CasADi's virtual machine, said once), or
@@ -47,12 +86,16 @@ def compile_functions(fns: list[ca.Function], directory: Path | None = None,
     the cache, a full disk) would crash the process when loaded (SIGBUS), so one that does not
     match, or has no record, is built again. A cache directory that cannot be written (read
     only, full) costs only time: the library is then built in a temporary directory, used by
-    this process and not kept (said once)."""
+    this process and not kept (said once). With ``key`` the library is named by it
+    (:func:`cached` finds it without the graphs), else by a hash of the graphs."""
     directory = directory or cache_dir()
-    digest = hashlib.sha256(ca.__version__.encode())
-    for fn in fns:
-        digest.update(fn.serialize().encode())
-    name = f"feltool_cycle_{digest.hexdigest()[:20]}"
+    if key is not None:
+        name = library_name(key)
+    else:
+        digest = hashlib.sha256(ca.__version__.encode())
+        for fn in fns:
+            digest.update(fn.serialize().encode())
+        name = f"feltool_cycle_{digest.hexdigest()[:20]}"
     lib = directory / f"{name}.so"
     if verified(lib):
         return [ca.external(fn.name(), str(lib)) for fn in fns]
