@@ -6,6 +6,11 @@ where it came from and the joint-name bookkeeping the rest of feltool needs.
 
 from __future__ import annotations
 
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -124,8 +129,9 @@ class Robot:
     def visual_model(self) -> pin.GeometryModel:
         """The visuals of the URDF's description (meshes by absolute path), built on first use."""
         if self._visual_model is None:
-            self._visual_model = pin.buildGeomFromUrdfString(self.model, self.description,
-                                                             pin.GeometryType.VISUAL)
+            with captured_stderr():  # (said when the model was loaded)
+                self._visual_model = pin.buildGeomFromUrdfString(self.model, self.description,
+                                                                 pin.GeometryType.VISUAL)
         return self._visual_model
 
 
@@ -253,9 +259,13 @@ def _from_text(text: str, where: str, base: Path, dirs: list[str], lenient: bool
     infinite ones (Pinocchio's own value for a continuous joint's effort and velocity)."""
     description = read_urdf(text, where, base, dirs, lenient)
     try:
-        model = pin.buildModelFromXML(description.xml)
+        with captured_stderr() as said:
+            model = pin.buildModelFromXML(description.xml)
     except Exception as exc:  # Pinocchio raises ValueError/RuntimeError with its own text
-        raise RobotError(f"{where}: Pinocchio could not build a model: {exc}") from None
+        raise RobotError(f"{where}: Pinocchio could not build a model: {exc}"
+                         + "".join(f"; {line}" for line in said)) from None
+    description.warnings += [f"{where}: Pinocchio's URDF parser (urdfdom) said: {line}"
+                             for line in said]
     for joint_name, missing in description.unbounded.items():
         joint = model.joints[model.getJointId(joint_name)]
         if "position" in missing:
@@ -266,6 +276,35 @@ def _from_text(text: str, where: str, base: Path, dirs: list[str], lenient: bool
                 limits[joint.idx_v] = np.inf
     return Robot(name="robot", model=model, source=where, package_dirs=dirs,
                  urdf_xml=description.xml, warnings=description.warnings)
+
+
+@contextmanager
+def captured_stderr() -> Iterator[list[str]]:
+    """What C++ code (urdfdom, inside Pinocchio's parser) writes to the process's stderr while
+    the block runs, as its non-empty lines (filled in when the block ends), instead of a screen
+    of text under feltool's own report."""
+    lines: list[str] = []
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):
+        fd = 2
+    try:
+        saved = os.dup(fd)
+    except OSError:  # no stderr to redirect: nothing to capture
+        yield lines
+        return
+    with tempfile.TemporaryFile() as tmp:
+        sys.stderr.flush()
+        os.dup2(tmp.fileno(), fd)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, fd)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read().decode("utf-8", errors="replace")
+            lines += [" ".join(line.split()) for line in text.splitlines() if line.strip()
+                      and not line.strip().startswith("at line ")]
 
 
 def _load_erd(name: str, source: str) -> Robot:

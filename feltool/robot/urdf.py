@@ -26,7 +26,12 @@ with ``lenient=False`` each is an error naming the element:
 * an ``<inertial>`` without ``<inertia>``: a point mass, zero rotational inertia (one warning
   per link);
 * a revolute or prismatic joint without ``<limit>`` (or a ``<limit>`` without some of its
-  attributes): unbounded in what is missing, :math:`\\pm\\infty` in the model (one warning).
+  attributes): unbounded in what is missing, :math:`\\pm\\infty` in the model (one warning);
+* a planar model's inertia, one moment alone (``ixx="0" iyy="1.33" izz="0"``, which no rigid
+  body has): the other two moments read as half of it, which motion in the plane does not feel
+  (one warning per link);
+* a ``<material>`` without a name (which Pinocchio's parser drops with the whole visual): named
+  after its link.
 """
 
 from __future__ import annotations
@@ -221,6 +226,18 @@ def _dialects(urdf: yourdfpy.URDF) -> list[_Dialect]:
             found.append(_Dialect(f"<link name=\"{link.name}\">", f"<inertial> has a mass "
                                   f"({link.inertial.mass or 0.0:g} kg) but no <inertia>; read "
                                   "as a point mass (zero rotational inertia)"))
+        elif link.inertial is not None and _planar_axis(link.inertial.inertia) is not None:
+            axis = "xyz"[_planar_axis(link.inertial.inertia)]
+            found.append(_Dialect(f"<link name=\"{link.name}\"> <inertial> <inertia>", "a "
+                                  f"planar model's inertia (only i{axis}{axis}, the moment about "
+                                  "the plane's normal); the other two moments read as half of "
+                                  f"it, which a plane's motion does not feel (only i{axis}{axis} "
+                                  "acts in it)"))
+        for i, visual in enumerate(link.visuals or []):
+            if visual.material is not None and not visual.material.name:
+                found.append(_Dialect(f"<link name=\"{link.name}\"> <visual> <material>", "a "
+                                      f"material without a name; named '{link.name}_{i}' (the "
+                                      "URDF parser needs one)"))
     for joint in urdf.robot.joints:
         if joint.type not in ("revolute", "prismatic") and \
                 (joint.type != "continuous" or joint.limit is None):
@@ -237,6 +254,20 @@ def _dialects(urdf: yourdfpy.URDF) -> list[_Dialect]:
     return found
 
 
+def _planar_axis(inertia) -> int | None:
+    """The axis of a planar model's inertia: one positive diagonal moment, the rest zero (as
+    planar walkers are published, e.g. ``ixx="0" iyy="1.33" izz="0"``: not a rigid body's,
+    which the triangle inequality refuses); else None."""
+    if inertia is None:
+        return None
+    I = np.asarray(inertia, dtype=float)  # noqa: E741
+    diag = np.diag(I)
+    if I.shape != (3, 3) or np.any(I - np.diag(diag)) or np.count_nonzero(diag) != 1:
+        return None
+    axis = int(np.flatnonzero(diag)[0])
+    return axis if diag[axis] > 0.0 else None
+
+
 def _normalise(urdf: yourdfpy.URDF, unbounded: dict[str, list[str]]) -> None:
     """Write the dialects as Pinocchio's parser reads them: the world link, zero inertias of
     point masses, and 0 for missing limits (the model's are then set to infinity)."""
@@ -246,6 +277,13 @@ def _normalise(urdf: yourdfpy.URDF, unbounded: dict[str, list[str]]) -> None:
     for link in urdf.robot.links:
         if link.inertial is not None and link.inertial.inertia is None:
             link.inertial.inertia = np.zeros((3, 3))
+        elif link.inertial is not None and (axis := _planar_axis(link.inertial.inertia)) is not None:
+            moment = float(link.inertial.inertia[axis, axis])
+            link.inertial.inertia = np.diag([moment / 2.0] * 3)
+            link.inertial.inertia[axis, axis] = moment
+        for i, visual in enumerate(link.visuals or []):
+            if visual.material is not None and not visual.material.name:
+                visual.material.name = f"{link.name}_{i}"
     for name in unbounded:
         joint = urdf.joint_map[name]
         joint.limit = joint.limit or yourdfpy.Limit()
