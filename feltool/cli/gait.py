@@ -20,7 +20,15 @@ def cmd_gait(args: argparse.Namespace) -> int:
     """Design a walker's periodic gait (feltool/gait/design.py), verify it in feltool's own
     walker and close it on the loop's orbit (feltool/gait/orbit.py), write it as RMP demos."""
     from feltool.config.files import read_yaml
-    from feltool.gait.config import gait_config, gait_spec, walker_from_raw, write_gait_config
+    from feltool.experiment.assemble import validate
+    from feltool.gait.config import (
+        gait_config,
+        gait_spec,
+        rate_hz,
+        walker_from_raw,
+        write_gait_config,
+    )
+    from feltool.gait.defaults import complete_walker, placeholder_gait, robot_relative_to
     from feltool.gait.design import design_gait
     from feltool.gait.orbit import GaitNotWalking, close_on_orbit, verify_design
     from feltool.runs.experiments import build_experiment, resolve_config_path
@@ -28,6 +36,7 @@ def cmd_gait(args: argparse.Namespace) -> int:
     path = resolve_config_path(args.config)
     raw = read_yaml(path)
     walker, settings = walker_from_raw(raw, path)
+    raw, defaults = complete_walker(raw, path, walker, rate_hz(raw))
     if args.torso is not None and "base_pitch" not in walker.base:
         raise InputError(f"--torso: the walker in {path.name} has no base_pitch (its base joints "
                          f"are {', '.join(walker.base)})")
@@ -39,6 +48,10 @@ def cmd_gait(args: argparse.Namespace) -> int:
                      normal_force_margin=args.normal_force_margin,
                      clearance_margin_m=args.clearance)
     out = args.out or Path(f"{path.stem}-gait.yaml")
+    # the whole config as it will be written (its demos the standing pose), before the solve
+    validate(gait_config(raw, walker, placeholder_gait(walker, spec), spec, settings), path)
+    for line in defaults:
+        print(f"  default {line}")
 
     def progress(it: int, viol: float, cost: float) -> None:
         if args.progress and it % 5 == 0:
@@ -80,7 +93,8 @@ def cmd_gait(args: argparse.Namespace) -> int:
         print(f"  demos: the loop's periodic orbit, {orbit.samples_per_step[0]} control steps "
               f"per step (the collocation's knots tracked in the loop: summed feedback "
               f"{orbit.feedback:.3g} N m; on the orbit: {check.feedback:.2g} N m)")
-    write_gait_config(out, config, gait, "feltool gait " + " ".join(sys.argv[2:]), check)
+    write_gait_config(out, robot_relative_to(config, path, out), gait,
+                      "feltool gait " + " ".join(sys.argv[2:]), check, defaults)
     print(f"  written: {out}")
     _show_gait(build_experiment(config, path), check, args)
     return 0

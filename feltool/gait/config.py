@@ -23,6 +23,7 @@ from feltool.files import atomic_write
 from feltool.gait.design import Gait, GaitSpec
 from feltool.robot.robot import load_robot, robot_spec
 from feltool.walking.model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
+from feltool.walking.standing import standing_pose
 
 
 def walker_from_raw(raw: dict[str, Any], source: Path | None = None
@@ -120,11 +121,11 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
     elif duration is None and period is not None:
         duration = float(period) / settings["steps_per_cycle"]
     if duration is not None:
-        n = duration * _rate_hz(raw)
+        n = duration * rate_hz(raw)
         if abs(n - round(n)) > 1e-6:
-            dt = 1.0 / _rate_hz(raw)
+            dt = 1.0 / rate_hz(raw)
             raise InputError(f"--duration (or period_s / walking.steps_per_cycle): a step of "
-                             f"{duration:g} s at sim.rate_hz {_rate_hz(raw):g} is {n:g} control "
+                             f"{duration:g} s at sim.rate_hz {rate_hz(raw):g} is {n:g} control "
                              f"steps; give a whole number of them, e.g. {np.floor(n) * dt:g} or "
                              f"{np.ceil(n) * dt:g} s")
     if not passive and speed is None and step_length is None:
@@ -143,9 +144,8 @@ def gait_spec(raw: dict[str, Any], walker: WalkerModel, settings: dict[str, Any]
 
 
 def _hip_height(walker: WalkerModel, foot: str) -> float:
-    data = walker.model.createData()
-    pin.framesForwardKinematics(walker.model, data, pin.neutral(walker.model))
-    return float(-data.oMf[walker.feet[foot]].translation[2])
+    """The hip height in [m] of the walker standing (:mod:`feltool.walking.standing`)."""
+    return standing_pose(walker).height
 
 
 def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: GaitSpec,
@@ -179,7 +179,7 @@ def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: Gait
     out = copy.deepcopy(raw)
     # a whole number of control steps per step (a passive gait's free duration is rounded: the
     # knots' times stretch by less than half a control step)
-    dt = 1.0 / _rate_hz(raw)
+    dt = 1.0 / rate_hz(raw)
     out["period_s"] = _num(spc * round(gait.duration / dt) * dt)
     if spec.slope != 0.0:
         g = settings["gravity"]
@@ -203,7 +203,7 @@ def gait_config(raw: dict[str, Any], walker: WalkerModel, gait: Gait, spec: Gait
     return out
 
 
-def _rate_hz(raw: dict[str, Any]) -> float:
+def rate_hz(raw: dict[str, Any]) -> float:
     """The config's control rate in [Hz] (the schema's default when it gives none)."""
     from feltool.config.sim import SimConfig
 
@@ -238,9 +238,11 @@ def _num(x: float) -> float:
 
 
 def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: str,
-                      check=None) -> None:
+                      check=None, defaults: list[str] | None = None) -> None:
     """Write ``config`` as YAML with a header of the gait's figures and, with ``check`` (a
-    :class:`feltool.gait.orbit.Verification`), of its walk in feltool's walker."""
+    :class:`feltool.gait.orbit.Verification`), of its walk in feltool's walker; the
+    ``defaults`` taken (:func:`feltool.gait.defaults.complete_walker`), and what there is to
+    learn."""
     m = gait.metrics
     two = config.get("walking", {}).get("steps_per_cycle", 1) == 2
     labels = ("two steps in the first step's labels" if two
@@ -258,5 +260,25 @@ def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: s
                    f"{check.max_friction_ratio:.3g}, Poincaré spectral radius "
                    f"{check.poincare['spectral_radius']:.3g}; summed feedback on the demos' "
                    f"orbit {check.feedback:.2g} N m.\n")
+    for line in defaults or []:
+        header += f"# Default {line}.\n"
+    header += _learning_note(config)
     text = yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=100)
     atomic_write(path, header + text)
+
+
+def _learning_note(config: dict[str, Any]) -> str:
+    """The header's lines on what FEL has to learn in this config."""
+    learned = [name for name, jc in (config.get("joints") or {}).items()
+               if isinstance(jc, dict) and jc.get("learn") is not None]
+    worlds = [k for k in ("events", "plant", "disturbances") if config.get(k)]
+    if not learned:
+        return ("# Learning: no joint learns (joints.J.learn): run as written, the walker walks "
+                "its designed orbit,\n# on which the feedback is ~1e-8 N m: nothing to learn. "
+                "FEL has work from a perturbed start\n# (joints.J.learn: {init: perturbed}) or "
+                "in a world that differs from the design (events:, plant:).\n")
+    if not worlds:
+        return (f"# Learning: {', '.join(learned)} learn from their start (joints.J.learn); on "
+                "the designed orbit itself\n# the feedback is ~1e-8 N m: a world that differs "
+                "from the design (events:, plant:) gives FEL more.\n")
+    return f"# Learning: {', '.join(learned)} learn in a world changed by {', '.join(worlds)}.\n"

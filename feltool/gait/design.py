@@ -55,6 +55,7 @@ from feltool.dynamics.symbolic import (
 )
 from feltool.errors import FeltoolError, InputError
 from feltool.walking.model import WalkerModel
+from feltool.walking.standing import standing_pose
 
 
 class GaitDesignError(FeltoolError):
@@ -162,6 +163,7 @@ class _Walker:
     mass: float
     gravity: float
     height: float
+    stand: np.ndarray  # the standing pose (minimal coordinates)
     R: np.ndarray
     ix: int
     iz: int
@@ -237,13 +239,10 @@ def _walker_pieces(walker: WalkerModel, spec: GaitSpec) -> _Walker:
             upper[j.idx_v] = model.upperPositionLimit[j.idx_q]
     lower[~np.isfinite(lower) | (lower < -1e10)] = -np.inf
     upper[~np.isfinite(upper) | (upper > 1e10)] = np.inf
-    data = model.createData()
-    q0 = pin.neutral(model)
-    pin.framesForwardKinematics(model, data, q0)
-    height = float(max(-data.oMf[walker.feet[f]].translation[2] for f in feet))
+    stand = standing_pose(walker, spec.pitch_target)  # (whatever the URDF's zero angles)
     return _Walker(model=model, nv=nv, to_pin=to_pin, rnea=symbolic_rnea(model), feet=feet,
                    actuated=actuated, mass=float(sum(i.mass for i in model.inertias)), gravity=g,
-                   height=max(height, 1e-3), R=R_v, ix=walker.robot.v_index(walker.base[0]),
+                   height=max(stand.height, 1e-3), stand=stand.q, R=R_v, ix=walker.robot.v_index(walker.base[0]),
                    iz=walker.robot.v_index(walker.base[1]), lower=lower, upper=upper,
                    effort=np.array(model.effortLimit, dtype=float))
 

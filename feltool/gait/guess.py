@@ -5,8 +5,9 @@ foot a step length :math:`L` behind; at mid-step the swing foot passes the stanc
 (at the ground for a walker without knees, 10 % of the hip height above it with knees); the step
 ends in the mirror image of its start: :math:`q_N = R\,(q_0 + L e_x)` (relabelling :math:`R`, an
 involution). Each posture is a small inverse-kinematics problem (the feet where they must be,
-the joints as close as possible to a neutral posture: the torso at its target pitch, the joints at
-zero or just inside their limits), solved by IPOPT in milliseconds. The knots interpolate the
+the joints as close as possible to the walker's standing pose (:mod:`feltool.walking.standing`:
+legs straight under the hip, whatever the URDF's zero angles; the torso at its target pitch,
+the joints just inside their limits), solved by IPOPT in milliseconds. The knots interpolate the
 three postures piecewise linearly in time; velocities are their finite differences.
 """
 
@@ -70,13 +71,13 @@ def initial_guess(walker: WalkerModel, W, spec) -> Guess:
     """Knot values for :func:`feltool.gait.design.design_gait` (see the module's docstring)."""
     N = spec.knots
     T, L = _duration_and_length(W, spec)
-    nominal = np.zeros(W.nv)
+    nominal = W.stand.copy()  # standing (feltool.walking.standing), whatever the zero angles
     for i in range(W.nv):
         lo, hi = W.lower[i], W.upper[i]
         if np.isfinite(lo) and np.isfinite(hi):
             margin = 0.05 * (hi - lo)
-            nominal[i] = np.clip(0.0, lo + margin, hi - margin)
-    nominal[W.iz] = W.height
+            nominal[i] = np.clip(nominal[i], lo + margin, hi - margin)
+    nominal[W.ix], nominal[W.iz] = 0.0, W.height
     if spec.pitch_joint is not None and spec.pitch_target is not None:
         nominal[walker.robot.v_index(spec.pitch_joint)] = spec.pitch_target
     start_nominal = nominal.copy()

@@ -15,8 +15,8 @@ every step. The base coordinates are not relabelled (they are the root link's, s
 legs).
 
 A walker whose root link is itself a leg (the compass gait: the root is one leg, the joint
-``hip`` at the root's origin carries the other) names the pair ``[base_pitch, hip]``: a *chained*
-pair, the second joint's parent being the first and both turning about the same axis at the same
+``hip`` carries the other) names the pair ``[base_pitch, hip]``: a *chained* pair (a URDF
+rooted elsewhere on that leg, e.g. at its foot, is mounted on the base at the hip), the second joint's parent being the first and both turning about the same axis at the same
 point. Exchanging the two legs is then the linear map
 :math:`\vartheta' = \vartheta + q_{hip},\; q_{hip}' = -q_{hip}` (and the same on the
 velocities), an involution like the plain exchange.
@@ -44,9 +44,10 @@ class FootSpec:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-def with_planar_base(robot: Robot) -> Robot:
+def with_planar_base(robot: Robot, mount: pin.SE3 | None = None) -> Robot:
     """A copy of ``robot`` whose root link sits on the base joints ``base_x``, ``base_z``,
-    ``base_pitch`` (q[0:3], v[0:3]: x, z in [m], pitch in [rad]; unactuated, unbounded).
+    ``base_pitch`` (q[0:3], v[0:3]: x, z in [m], pitch in [rad]; unactuated, unbounded), its
+    frame at ``mount`` in the base's (default: the base's own frame).
 
     Gravity, limits and the source are kept.
     """
@@ -56,9 +57,10 @@ def with_planar_base(robot: Robot) -> Robot:
     for name, joint in zip(BASE_JOINTS, joints):
         parent = base.addJoint(parent, joint, pin.SE3.Identity(), name)
         base.appendBodyToJoint(parent, pin.Inertia.Zero(), pin.SE3.Identity())
-    mount = base.addFrame(pin.Frame("base_mount", parent, 0, pin.SE3.Identity(),
-                                    pin.FrameType.OP_FRAME))
-    model = pin.appendModel(base, robot.model, mount, pin.SE3.Identity())
+    mount_frame = base.addFrame(pin.Frame("base_mount", parent, 0, pin.SE3.Identity(),
+                                          pin.FrameType.OP_FRAME))
+    model = pin.appendModel(base, robot.model, mount_frame,
+                            pin.SE3.Identity() if mount is None else mount)
     model.gravity = robot.model.gravity
     model.effortLimit[:3] = 0.0
     model.lowerPositionLimit[:3] = -np.inf
@@ -144,7 +146,7 @@ def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple
         RobotError: naming an unknown frame, link or joint.
     """
     if base == "planar":
-        robot = with_planar_base(robot)
+        robot = with_planar_base(robot, _hip_mount(robot, legs))
         base_names = list(BASE_JOINTS)
     else:
         base_names = list(base)
@@ -170,6 +172,25 @@ def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple
     return WalkerModel(robot=robot, base=base_names, feet=frame_ids,
                        legs=[(a, b) for a, b in legs], swap_q=swap_q, swap_v=swap_v,
                        chained=tuple(chained))
+
+
+def _hip_mount(robot: Robot, legs: list[tuple[str, str]]) -> pin.SE3 | None:
+    """Where a root-leg walker's root link goes on the base: a chained pair ``[base_pitch,
+    hip]`` whose ``hip`` hangs from the root link away from its origin (a URDF rooted at the
+    stance foot, as Drake's and the course's compass gaits are: the hip 1 m above the root's
+    frame) puts the root link at the inverse of the hip's placement, so that the base's
+    (x, z, pitch) are the hip's position and the root leg's angle about it. None otherwise."""
+    model = robot.model
+    for a, b in legs:
+        if a != BASE_JOINTS[2] or not model.existJointName(b):
+            continue
+        jb = model.getJointId(b)
+        if model.parents[jb] != 0:
+            continue
+        placement = model.jointPlacements[jb]
+        if not placement.isIdentity(1e-12):
+            return placement.inverse()
+    return None
 
 
 def _is_chained(model: pin.Model, robot: Robot, a: str, b: str) -> bool:
