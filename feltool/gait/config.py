@@ -21,7 +21,7 @@ import yaml
 from feltool.errors import ConfigError, InputError, RobotError
 from feltool.files import atomic_write
 from feltool.gait.design import Gait, GaitSpec
-from feltool.robot.robot import load_robot, robot_spec
+from feltool.robot.robot import load_robot, robot_spec, with_angle_coordinates
 from feltool.walking.model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
 from feltool.walking.standing import standing_pose
 
@@ -65,7 +65,7 @@ def walker_from_raw(raw: dict[str, Any], source: Path | None = None
     base_dir = source.parent if source else Path.cwd()
     try:
         source, lenient = robot_spec(raw.get("robot"))
-        robot = load_robot(source, base_dir=base_dir, lenient=lenient)
+        robot = with_angle_coordinates(load_robot(source, base_dir=base_dir, lenient=lenient))
     except RobotError as exc:
         raise ConfigError([("robot", str(exc))], where) from None
     gravity = raw.get("gravity", 9.8)
@@ -216,7 +216,8 @@ def _complete_joints(joints: dict[str, Any], walker: WalkerModel, gait: Gait,
     r"""What the walker's loop needs besides the designed motion: every motor the config does
     not name tracks its design, with gains of a critically damped ``hz`` [Hz] loop on its own
     inertia at the step's start (:math:`k_p = I\omega^2`, :math:`k_d = 2I\omega`; edit them
-    in the written config); a stabilized torso (``base_pitch``) tracks its designed motion,
+    in the written config); an unnamed base pitch is passive with its designed motion; a
+    stabilized torso (``base_pitch``) tracks its designed motion,
     whose mean is its target (a constant target would fight the design's own torso motion)."""
     model = walker.model
     M = pin.crba(model, model.createData(), gait.q_pin[0])
@@ -227,6 +228,9 @@ def _complete_joints(joints: dict[str, Any], walker: WalkerModel, gait: Gait,
         inertia = float(M[walker.robot.v_index(name), walker.robot.v_index(name)])
         joints[name] = {"role": "track",
                         "gains": {"kp": _num(inertia * w**2), "kd": _num(2.0 * inertia * w)}}
+    pitch = walker.base[2] if len(walker.base) > 2 else None
+    if pitch is not None and pitch not in joints:  # unactuated: it follows its designed motion
+        joints[pitch] = {"role": "passive"}  # (the base's x and z follow from the stance foot)
     torso = joints.get(BASE_JOINTS[2])
     if isinstance(torso, dict) and torso.get("role") == "stabilize":
         torso["role"] = "track"
