@@ -284,10 +284,7 @@ def captured_stderr() -> Iterator[list[str]]:
     the block runs, as its non-empty lines (filled in when the block ends), instead of a screen
     of text under feltool's own report."""
     lines: list[str] = []
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):
-        fd = 2
+    fd = 2  # where C++'s std::cerr writes, whatever Python's sys.stderr is now
     try:
         saved = os.dup(fd)
     except OSError:  # no stderr to redirect: nothing to capture
