@@ -131,14 +131,11 @@ def test_a_published_walker_designs_writes_elsewhere_and_walks_3_seeds(
     out = capsys.readouterr()
     assert code == 0, out.out + out.err
     assert "walked without falling: 3/3 seeds; not walking: 0" in out.out
-    steps_per_cycle = 1
-    for seed in range(3):
-        summary = json.loads((run_dir / f"seed_{seed}" / "summary.json").read_text())
-        walk = summary.get("walking") or summary
-        assert walk.get("fell", False) is False
-        steps = walk.get("steps") or walk.get("steps_walked")
-        if steps is not None:
-            assert steps == 6 * steps_per_cycle
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert [s["seed"] for s in summary["seeds"]] == [0, 1, 2]
+    for seed in summary["seeds"]:  # every step of every cycle walked (one step per cycle)
+        assert seed["walking"]["walked"] is True and seed["walking"]["not_walking"] is None
+        assert seed["walking"]["steps"] == seed["cycles"] == 6
 
 
 def test_planar_inertia_is_read_leniently_and_acts_as_the_rigid_body_in_the_plane(tmp_path):

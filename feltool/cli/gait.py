@@ -24,7 +24,6 @@ def cmd_gait(args: argparse.Namespace) -> int:
     from feltool.gait.config import (
         gait_config,
         gait_spec,
-        rate_hz,
         walker_from_raw,
         write_gait_config,
     )
@@ -36,7 +35,7 @@ def cmd_gait(args: argparse.Namespace) -> int:
     path = resolve_config_path(args.config)
     raw = read_yaml(path)
     walker, settings = walker_from_raw(raw, path)
-    raw, defaults = complete_walker(raw, path, walker, rate_hz(raw))
+    raw, defaults = complete_walker(raw, path, walker)
     if args.torso is not None and "base_pitch" not in walker.base:
         raise InputError(f"--torso: the walker in {path.name} has no base_pitch (its base joints "
                          f"are {', '.join(walker.base)})")

@@ -5,6 +5,7 @@ A walker config may name only its robot, its feet, its legs and the torso's targ
 has defaults, each said in the written config's header:
 
 * ``name``: the config file's name (its stem, characters outside ``[A-Za-z0-9_.-]`` as ``_``);
+* ``sim.rate_hz``: :data:`RATE_HZ`, the shipped walkers' control rate;
 * ``walking.phase``: ``mechanical`` (a designed gait tracked on the clock drifts off it: the
   step's duration in the loop is the physics', not the design's; docs/biped.md);
 * the gains of a tracked or stabilized joint that gives none, and of every motor the config
@@ -34,6 +35,10 @@ import pinocchio as pin
 from feltool.walking.model import WalkerModel
 from feltool.walking.standing import standing_pose, to_configuration
 
+#: The control rate of a walker config that gives none, in [Hz]: the shipped walkers'. (At the
+#: schema's 100 Hz a designed gait's first steps are tracked coarsely enough to leave the
+#: friction cone on some walkers.)
+RATE_HZ = 500.0
 #: Natural frequency of the default gains' loop in [Hz].
 GAIN_HZ = 2.0
 #: The default gains' frequency is at most the control rate over this [-].
@@ -50,13 +55,18 @@ def critically_damped(inertia: float, rate_hz: float, hz: float = GAIN_HZ) -> di
     return {"kp": _num(inertia * w * w), "kd": _num(2.0 * inertia * w)}
 
 
-def complete_walker(raw: dict[str, Any], source: Path | None, walker: WalkerModel,
-                    rate_hz: float) -> tuple[dict[str, Any], list[str]]:
+def complete_walker(raw: dict[str, Any], source: Path | None, walker: WalkerModel
+                    ) -> tuple[dict[str, Any], list[str]]:
     """``raw`` with the defaults of the module docstring, and one line per default taken."""
     out, notes = copy.deepcopy(raw), []
     if not out.get("name") and source is not None:
         out = {"name": re.sub(r"[^A-Za-z0-9_.-]", "_", source.stem) or "walker", **out}
         notes.append(f"name: {out['name']} (the file's name)")
+    sim = out.setdefault("sim", {})
+    if isinstance(sim, dict) and "rate_hz" not in sim:
+        sim["rate_hz"] = RATE_HZ
+        notes.append(f"sim.rate_hz: {RATE_HZ:g} (the shipped walkers' control rate)")
+    rate = float(sim.get("rate_hz", RATE_HZ)) if isinstance(sim, dict) else RATE_HZ
     walking = out.setdefault("walking", {})
     if isinstance(walking, dict) and "phase" not in walking:
         walking["phase"] = "mechanical"
@@ -69,7 +79,7 @@ def complete_walker(raw: dict[str, Any], source: Path | None, walker: WalkerMode
             if isinstance(jc, dict) and jc.get("role") in ("track", "stabilize") \
                     and jc.get("gains") is None and name in walker.robot.joint_names:
                 i = walker.robot.v_index(name)
-                jc["gains"] = critically_damped(float(M[i, i]), rate_hz)
+                jc["gains"] = critically_damped(float(M[i, i]), rate)
                 given.append(f"{name} {jc['gains']['kp']:.4g}/{jc['gains']['kd']:.4g}")
         if given:
             notes.append(f"gains kp/kd (critically damped at {GAIN_HZ:g} Hz on each joint's "
