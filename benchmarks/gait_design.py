@@ -7,7 +7,13 @@ knots, and the gait's period, speed, step length, cost of transport, least norma
 friction ratio and impact impulse ratio. Run with one BLAS/OpenMP thread (``OMP_NUM_THREADS=1``,
 set below before numpy loads): MUMPS' threads only slow it down on a shared 2-core machine.
 
-Usage: ``python benchmarks/gait_design.py [repeats]`` (default 5)
+Then the whole process, as a user runs it: ``feltool gait`` of each shipped walker (design,
+verification, orbit closure and Poincaré analysis included, its config written) timed from
+launch to exit, with the compiled engine's cache warm (the median of ``repeats``) and cold (a
+fresh ``FELTOOL_CACHE``: C compilation included, once), against the targets (compass gait 3 s,
+three-link 5 s, five-link 8 s on a 2-core machine); and ``feltool --help`` (0.5 s).
+
+Usage: ``python benchmarks/gait_design.py [repeats] [--whole-only]`` (default 5)
 """
 
 from __future__ import annotations
@@ -64,5 +70,49 @@ def main(repeats: int = 5) -> None:
               f"{m['max_friction_ratio']:.2f} | {m['impulse_ratio']:.2f} |")
 
 
+WHOLE = [  # label, config, feltool gait's options (the configs' headers), target [s]
+    ("compass gait", "compass_gait", ["--step-length", "0.4", "--duration", "0.6"], 3.0),
+    ("three-link walker", "three_link_walker",
+     ["--step-length", "0.5", "--duration", "0.6", "--torso", "0.1", "--friction-margin", "0.6",
+      "--normal-force-margin", "0.5"], 5.0),
+    ("five-link walker", "five_link_walker",
+     ["--speed", "0.8", "--duration", "0.5", "--torso", "0.1"], 8.0),
+]
+
+
+def whole_process(repeats: int = 5) -> None:
+    """``feltool gait`` and ``feltool --help`` timed from launch to exit (module docstring)."""
+    import subprocess
+    import tempfile
+    import time
+
+    feltool = [sys.executable, "-m", "feltool.cli"]
+
+    def timed(args, env=None) -> float:
+        t0 = time.perf_counter()
+        proc = subprocess.run(feltool + args, capture_output=True, text=True, env=env)
+        seconds = time.perf_counter() - t0
+        if proc.returncode != 0:
+            raise SystemExit(f"{' '.join(args)} exited {proc.returncode}: {proc.stderr[-500:]}")
+        return seconds
+
+    print("\n| command | warm cache [s] (median) | cold cache [s] | target [s] | warm / target |")
+    print("|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, name, options, target in WHOLE:
+            args = ["gait", str(CONFIGS / f"{name}.yaml"), *options, "--out",
+                    f"{tmp}/{name}.yaml", "--no-progress"]
+            cold = timed(args, {**os.environ, "FELTOOL_CACHE": f"{tmp}/cache-{name}"})
+            timed(args)  # the user's cache warm
+            warm = float(np.median([timed(args) for _ in range(repeats)]))
+            print(f"| feltool gait {name} | {warm:.2f} | {cold:.1f} | {target:g} | "
+                  f"{warm / target:.2f} |", flush=True)
+        help_s = float(np.median([timed(["--help"]) for _ in range(repeats)]))
+        print(f"| feltool --help | {help_s:.2f} | - | 0.5 | {help_s / 0.5:.2f} |")
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 5)
+    count = int(sys.argv[1]) if len(sys.argv) > 1 and sys.argv[1].isdigit() else 5
+    if "--whole-only" not in sys.argv:
+        main(count)
+    whole_process(count)
