@@ -28,7 +28,7 @@ class YamlBoundError(ValueError):
 
 
 def check_bounds(text: str, max_depth: int = MAX_YAML_DEPTH,
-                 max_nodes: int = MAX_YAML_NODES) -> None:
+                 max_nodes: int = MAX_YAML_NODES, loader=None) -> None:
     """Raise :class:`YamlBoundError` when ``text`` nests deeper than ``max_depth`` or stands for
     more than ``max_nodes`` values once its aliases are expanded (also for an alias to a node
     that contains it: a recursive structure). YAML syntax errors are left to the loader."""
@@ -47,7 +47,7 @@ def check_bounds(text: str, max_depth: int = MAX_YAML_DEPTH,
                                  "expanded; an alias bomb? (the limit is feltool's)")
 
     try:
-        for event in yaml.parse(text, Loader=_LOADER):
+        for event in yaml.parse(text, Loader=loader or _LOADER):
             if isinstance(event, yaml.ScalarEvent):
                 add(1)
                 if event.anchor:
@@ -69,6 +69,8 @@ def check_bounds(text: str, max_depth: int = MAX_YAML_DEPTH,
                     sizes[anchor] = count
                 add(count)
     except yaml.YAMLError:
+        if (loader or _LOADER) is not yaml.SafeLoader:  # libyaml stops at its own limits
+            check_bounds(text, max_depth, max_nodes, yaml.SafeLoader)  # (ours, named)
         return  # the loader reports it with its position
 
 

@@ -118,7 +118,8 @@ class WalkingConfig(Strict):
         "[m]; default 0.05 for a walker without knees (one legs pair), 0 with knees.")
     scuff_behind: bool | None = Field(None, description="Physical walker: the classic "
         "compass-gait convention: the swing foot's scuffing is ignored while it is behind the "
-        "stance foot (a knee-less leg cannot clear the ground there; such sub-steps are counted "
+        "stance foot (a knee-less leg cannot clear the ground there; the control steps with it "
+        "below the ground are counted "
         "and reported, not a stop); default true for a walker without knees (one legs pair), "
         "false with knees.")
     clearance_tol_m: NonNegFloat = Field(0.001, description="Physical walker: how far the "
