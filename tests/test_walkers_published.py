@@ -22,7 +22,7 @@ import pytest
 
 from feltool.cli.main import main
 from feltool.errors import RobotError
-from feltool.robot.robot import captured_stderr, load_robot, with_angle_coordinates
+from feltool.robot.robot import captured_stderr, load_robot
 from feltool.walking.model import FootSpec, build_walker_model
 from feltool.walking.standing import standing_pose
 
@@ -199,7 +199,7 @@ def test_standing_pose_is_solved_from_the_kinematics(tmp_path):
         assert stand.q[r.v_index(f"q2_{side}")] == pytest.approx(0.0, abs=1e-6)
     path = tmp_path / "compass.urdf"
     path.write_text(compass_urdf())
-    walker = build_walker_model(with_angle_coordinates(load_robot(str(path))), {
+    walker = build_walker_model(load_robot(str(path)), {
         "left": FootSpec(link="stance_leg"), "right": FootSpec(link="swing_leg",
                                                                offset=(0.0, 0.0, -1.0))},
         [("base_pitch", "hip_pin")])

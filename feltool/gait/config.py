@@ -21,7 +21,7 @@ import yaml
 from feltool.errors import ConfigError, InputError, RobotError
 from feltool.files import atomic_write
 from feltool.gait.design import Gait, GaitSpec
-from feltool.robot.robot import load_robot, robot_spec, with_angle_coordinates
+from feltool.robot.robot import load_robot, robot_spec
 from feltool.walking.model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
 from feltool.walking.standing import standing_pose
 
@@ -65,7 +65,7 @@ def walker_from_raw(raw: dict[str, Any], source: Path | None = None
     base_dir = source.parent if source else Path.cwd()
     try:
         source, lenient = robot_spec(raw.get("robot"))
-        robot = with_angle_coordinates(load_robot(source, base_dir=base_dir, lenient=lenient))
+        robot = load_robot(source, base_dir=base_dir, lenient=lenient)
     except RobotError as exc:
         raise ConfigError([("robot", str(exc))], where) from None
     gravity = raw.get("gravity", 9.8)

@@ -30,7 +30,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.errors import RobotError
-from feltool.robot.robot import Robot
+from feltool.robot.robot import Robot, with_angle_coordinates
 
 BASE_JOINTS = ("base_x", "base_z", "base_pitch")  # the (x, z, pitch) base feltool adds
 
@@ -146,6 +146,9 @@ def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple
         RobotError: naming an unknown frame, link or joint.
     """
     if base == "planar":
+        if any(a == BASE_JOINTS[2] and robot.model.existJointName(b)
+               and robot.model.joints[robot.model.getJointId(b)].nq == 2 for a, b in legs):
+            robot = with_angle_coordinates(robot)  # a continuous hip paired with base_pitch
         robot = with_planar_base(robot, _hip_mount(robot, legs))
         base_names = list(BASE_JOINTS)
     else:
