@@ -162,3 +162,33 @@ def test_compiled_runs_several_cycles_per_call_and_resumes_bit_identically(tmp_p
                    checkpoint=Checkpointer(tmp_path, 0, every=5))
     assert res.rows == ref.rows
     np.testing.assert_array_equal(res.params["elbow.weights"], ref.params["elbow.weights"])
+
+
+def test_a_cached_library_loads_without_building_the_graphs(tmp_path, monkeypatch):
+    """The cache is keyed by what determines the graphs (config, robot model, worlds, feltool's
+    source): a second engine of the same experiment loads the library without building a graph
+    and runs the same cycle; another config (another gain) is another library."""
+    from feltool.engines.compiled.engine import CompiledEngine
+
+    monkeypatch.setenv("FELTOOL_CACHE", str(tmp_path / "cache"))
+    exp = load_experiment(CONFIGS / "two_link_standard.yaml", ["sim.cycles=2"])
+    first = CompiledEngine(exp)
+    libs = sorted((tmp_path / "cache" / "compiled").glob("*.so"))
+    assert len(libs) == 1
+
+    def no_build(*_):
+        raise AssertionError("the graphs were built on a cache hit")
+
+    monkeypatch.setattr(CompiledEngine, "_build", no_build)
+    again = CompiledEngine(load_experiment(CONFIGS / "two_link_standard.yaml", ["sim.cycles=2"]))
+    theta = exp.theta_demo
+    q, v = np.zeros(exp.robot.model.nv), np.zeros(exp.robot.model.nv)
+    data = first.data(theta)
+    state = first.state(theta, q, v)
+    for a, b in zip(first.cycle(0, state, data), again.cycle(0, state, data)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    monkeypatch.undo()
+    monkeypatch.setenv("FELTOOL_CACHE", str(tmp_path / "cache"))
+    CompiledEngine(load_experiment(CONFIGS / "two_link_standard.yaml",
+                                   ["sim.cycles=2", "joints.elbow.gains.kp=77"]))
+    assert len(list((tmp_path / "cache" / "compiled").glob("*.so"))) == 2
