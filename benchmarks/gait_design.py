@@ -99,7 +99,7 @@ def whole_process(repeats: int = 5) -> None:
     print("\n| command | warm cache [s] (median) | cold cache [s] | target [s] | warm / target |")
     print("|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
-        for label, name, options, target in WHOLE:
+        for _label, name, options, target in WHOLE:
             args = ["gait", str(CONFIGS / f"{name}.yaml"), *options, "--out",
                     f"{tmp}/{name}.yaml", "--no-progress"]
             cold = timed(args, {**os.environ, "FELTOOL_CACHE": f"{tmp}/cache-{name}"})

@@ -8,7 +8,8 @@ nothing is written into the repository), ``feltool`` ones in this process (no st
 command), with these shortenings:
 
 * ``feltool run`` and ``feltool sweep``: 2 cycles, seed 0, the Python engine (no C compilation
-  per config; a sweep's as a one-value grid), a fresh ``--out``; a resumed run adds one cycle; ``--view`` closes at once;
+  per config; a sweep's as a one-value grid), a fresh ``--out``; a resumed run adds one cycle;
+  ``--view`` closes at once;
 * ``feltool robustness``: 2 cycles, seed 0, one learner, one scenario at two values;
 * ``feltool gait``: a fresh ``--out``, ``--view`` closes at once (its runs are seconds);
 * ``runs/<run>`` is a run made by an earlier command; ``[--option value]`` (optional) dropped.

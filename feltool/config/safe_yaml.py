@@ -17,7 +17,6 @@ import yaml
 
 from feltool.bounds import MAX_YAML_DEPTH, MAX_YAML_NODES
 
-
 #: libyaml's parser when PyYAML has it (the same YAML, ten times faster on a gait's long lists
 #: of samples), else PyYAML's own.
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)

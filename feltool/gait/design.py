@@ -242,7 +242,8 @@ def _walker_pieces(walker: WalkerModel, spec: GaitSpec) -> _Walker:
     stand = standing_pose(walker, spec.pitch_target)  # (whatever the URDF's zero angles)
     return _Walker(model=model, nv=nv, to_pin=to_pin, rnea=symbolic_rnea(model), feet=feet,
                    actuated=actuated, mass=float(sum(i.mass for i in model.inertias)), gravity=g,
-                   height=max(stand.height, 1e-3), stand=stand.q, R=R_v, ix=walker.robot.v_index(walker.base[0]),
+                   height=max(stand.height, 1e-3), stand=stand.q, R=R_v,
+                   ix=walker.robot.v_index(walker.base[0]),
                    iz=walker.robot.v_index(walker.base[1]), lower=lower, upper=upper,
                    effort=np.array(model.effortLimit, dtype=float))
 

@@ -16,8 +16,9 @@ legs).
 
 A walker whose root link is itself a leg (the compass gait: the root is one leg, the joint
 ``hip`` carries the other) names the pair ``[base_pitch, hip]``: a *chained* pair (a URDF
-rooted elsewhere on that leg, e.g. at its foot, is mounted on the base at the hip), the second joint's parent being the first and both turning about the same axis at the same
-point. Exchanging the two legs is then the linear map
+rooted elsewhere on that leg, e.g. at its foot, is mounted on the base at the hip), the second
+joint's parent being the first and both turning about the same axis at the same point.
+Exchanging the two legs is then the linear map
 :math:`\vartheta' = \vartheta + q_{hip},\; q_{hip}' = -q_{hip}` (and the same on the
 velocities), an involution like the plain exchange.
 """
