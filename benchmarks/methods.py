@@ -263,7 +263,8 @@ def _walker_cost_of(robot: str, config: str, best) -> dict:
     q, v = exp.hybrid.initial_state(P, Pv)
     log = exp.hybrid.run_cycle(exp.dynamics, q, v, P, Pv, Pa)
     ilc = exp.config.ilc
-    p_type = PTypeILC(ilc.gain, ilc.lead_steps, ilc.cutoff_hz, ilc.order, exp.config.sim.rate_hz)
+    hz = exp.config.sim.rate_hz
+    p_type = PTypeILC(ilc.gain, round(ilc.lead_s * hz), ilc.cutoff_hz, ilc.order, hz)
     norm = NormOptimalILC(ilc.weight_error, ilc.weight_change)
     dU = np.zeros((exp.primitives.n_steps, exp.hybrid.walker.B.shape[1]))
     t0 = time.perf_counter()
@@ -298,7 +299,8 @@ def _cost_of(arm: str, config: str, best) -> dict:
     log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
     inputs, outputs = channels(exp)
     ilc = exp.config.ilc
-    p_type = PTypeILC(ilc.gain, ilc.lead_steps, ilc.cutoff_hz, ilc.order, exp.config.sim.rate_hz)
+    hz = exp.config.sim.rate_hz
+    p_type = PTypeILC(ilc.gain, round(ilc.lead_s * hz), ilc.cutoff_hz, ilc.order, hz)
     norm = NormOptimalILC(ilc.weight_error, ilc.weight_change)
     dU = np.zeros((len(Qd), len(inputs)))
 
