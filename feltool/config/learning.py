@@ -95,12 +95,13 @@ class LearningConfig(Strict):
                                    "damping, relative to the mean diagonal of J^T J [-]; at most "
                                    f"{MAX_DAMPING:g}.")
     safeguard: bool = Field(True, description="Undo a learning step that makes the next "
-        "cycle's mean error feedback exceed safeguard_growth times the best so far, or "
-        "diverge: the parameters before the step are restored and the step halved (a trust "
+        "cycle's mean error feedback exceed safeguard_growth times that of the cycle whose "
+        "update it is, or diverge: the parameters before the step are restored and the step halved (a trust "
         "region); a seed diverges only when the step fell below safeguard_min_step "
         "(feltool.runs.safeguard). false: the plain eq. 3.6 (the thesis's runs).")
     safeguard_growth: float = Field(2.0, gt=1.0, le=1.0e6, description="The factor of growth "
-        "of the mean error feedback over the best cycle so far that rejects a step [-].")
+        "of the mean error feedback from one cycle to the next that rejects the step between "
+        "them [-].")
     safeguard_min_step: float = Field(1.0e-3, gt=0.0, lt=1.0, description="The smallest step "
         "scale (halved at every rejected step) before the seed counts as diverged [-].")
     sensitivity: Literal["exact", "finite_difference", "casadi"] = Field("exact", description=

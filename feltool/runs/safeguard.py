@@ -1,11 +1,13 @@
 r"""A learning step that cannot throw a seed away (``learning.safeguard``, on by default).
 
 Cycle h's update moves the parameters by :math:`\Delta_h`; cycle h+1, run with them, tests the
-step. If its mean error feedback grows by more than ``learning.safeguard_growth`` over the best
-cycle so far, or the cycle diverges (:func:`feltool.runs.divergence.explain`), the step is
+step. If its mean error feedback grows by more than ``learning.safeguard_growth`` over cycle
+h's (the cycle whose update it is), or the cycle diverges (:func:`feltool.runs.divergence.explain`), the step is
 undone -- the parameters cycle h ran with and the state it started from are restored --
 and taken again at half its length, as a trust region does; every later step is scaled by the
-same (halved) factor. A seed counts as diverged only when that factor fell below
+same (halved) factor. A step after which the feedback grew by less than that factor (but more than
+:data:`SHRINK`) is kept, but the steps after it are halved too (the trust region shrinks; not
+below the floor). A seed counts as diverged only when that factor fell below
 ``learning.safeguard_min_step``. The rejected cycle stays in metrics.csv (``rejected`` 1; its
 feedback, infinite when the cycle diverged), so cycles-to-convergence count it.
 
@@ -13,8 +15,9 @@ Both engines: the factor scales the rates the engine steps with (the learner's, 
 learner's, and the compiled engine's ``params``, :func:`set_step_scale`), so an accepted
 cycle's update is the engine's own, per cycle and per step alike. The growth test is suspended
 at the cycles an event changes the world or the motion (the step did not cause that), and the
-best is counted no lower than :data:`FLOOR` of the first cycle's feedback (a converged seed's
-noise is no growth). ILC and the feedback-only baseline have no such step: off for them.
+feedback compared with is counted no lower than :data:`FLOOR` of the first cycle's (a
+converged seed's noise is no growth). A slow drift (a few per cent per cycle) is no rejected
+step: only a step that throws the cycle after it away is undone. ILC and the feedback-only baseline have no such step: off for them.
 """
 
 from __future__ import annotations
@@ -31,12 +34,16 @@ from feltool.learning.fel import FEL_UPDATES
 if TYPE_CHECKING:
     from feltool.experiment.experiment import Experiment
 
-#: The best feedback a step is compared with is at least this fraction of the first cycle's.
+#: A kept step after which the feedback grew by more than this factor halves the steps after it.
+SHRINK = 1.1
+
+#: The feedback a step is compared with is counted as at least this fraction of the first cycle's.
 FLOOR = 0.01
 
 
 class Safeguard:
-    """One seed's safeguard: the step scale, the best feedback so far, the step to undo.
+    """One seed's safeguard: the step scale, the last accepted cycle's feedback, the step to
+    undo.
 
     Args:
         exp: The experiment (its ``learning.safeguard`` settings).
@@ -48,7 +55,8 @@ class Safeguard:
         self.enabled = bool(L.safeguard) and L.update in FEL_UPDATES and \
             exp.learner.n_learned > 0
         self.growth, self.min_step = float(L.safeguard_growth), float(L.safeguard_min_step)
-        self.scale, self.best, self.first, self.rejected = 1.0, math.inf, None, 0
+        self.scale, self.last_fb, self.first, self.rejected = 1.0, math.inf, None, 0
+        self.shortened = 0
         self.fallback: SeedState | None = None  # parameters and state to go back to
         self.delta: np.ndarray | None = None    # the last accepted step
         self.delta_m: np.ndarray | None = None
@@ -79,13 +87,13 @@ class Safeguard:
         if self.first is None:
             self.first = fb
         floor = FLOOR * self.first if math.isfinite(self.first) else 0.0
-        grew = cycle not in self._events and fb > self.growth * max(self.best, floor)
+        grew = cycle not in self._events and fb > self.growth * max(self.last_fb, floor)
         if (reason or grew) and self.fallback is not None:
             self.rejected += 1
             self.scale *= 0.5
             if self.scale < self.min_step:
-                why = reason or (f"the error feedback grew to {fb:.3g} N m from a best of "
-                                 f"{self.best:.3g} N m")
+                why = reason or (f"the error feedback grew to {fb:.3g} N m from "
+                                 f"{self.last_fb:.3g} N m in the cycle before the step")
                 return None, True, (f"learning.safeguard: {self.rejected} steps undone, the "
                                     f"step scale {self.scale:.3g} fell below "
                                     f"learning.safeguard_min_step {self.min_step:g}; last: {why}")
@@ -101,7 +109,16 @@ class Safeguard:
                              state.plant), True, None
         if reason:
             return None, False, reason
-        self.best = min(self.best, fb)
+        worse = (cycle not in self._events and math.isfinite(self.last_fb)
+                 and fb > SHRINK * max(self.last_fb, floor))
+        if worse and 0.5 * self.scale >= self.min_step:  # kept, but the next steps shorter
+            self.scale *= 0.5
+            self.shortened += 1
+            set_step_scale(self.exp, self.scale)
+            accepted.theta = out.theta_next.copy()  # (a new array: the compiled engine's
+            if out.theta_m_next is not None:        # batch of cycles ahead had the old rates)
+                accepted.theta_m = out.theta_m_next.copy()
+        self.last_fb = fb  # the accepted cycle's: its update is tested next
         self.fallback = SeedState(state.theta, state.q, state.v, state.theta_m, state.plant)
         self.delta = out.theta_next - state.theta
         self.delta_m = (None if out.theta_m_next is None or state.theta_m is None
@@ -123,8 +140,9 @@ class Safeguard:
         """Arrays for a checkpoint (the seed resumes bit-identically)."""
         if not self.enabled:
             return {}
-        out = {"safeguard_scalars": np.array([self.scale, self.best, np.nan if self.first is None
-                                              else self.first, self.rejected], float)}
+        first = np.nan if self.first is None else self.first
+        out = {"safeguard_scalars": np.array([self.scale, self.last_fb, first, self.rejected,
+                                              self.shortened], float)}
         if self.fallback is not None:
             out.update({"safeguard_theta": self.fallback.theta, "safeguard_q": self.fallback.q,
                         "safeguard_v": self.fallback.v, "safeguard_delta": self.delta})
@@ -137,8 +155,10 @@ class Safeguard:
         """Continue from :meth:`save`'s arrays."""
         if not self.enabled or "safeguard_scalars" not in saved:
             return
-        scale, best, first, rejected = np.asarray(saved["safeguard_scalars"], float).tolist()
-        self.scale, self.best, self.rejected = scale, best, int(rejected)
+        scale, last_fb, first, rejected, shortened = np.asarray(
+            saved["safeguard_scalars"], float).tolist()
+        self.scale, self.last_fb, self.rejected = scale, last_fb, int(rejected)
+        self.shortened = int(shortened)
         self.first = None if math.isnan(first) else first
         if "safeguard_theta" in saved:
             self.fallback = SeedState(saved["safeguard_theta"], saved["safeguard_q"],
@@ -146,10 +166,12 @@ class Safeguard:
             self.delta, self.delta_m = saved["safeguard_delta"], saved.get("safeguard_delta_m")
 
     def summary(self) -> dict[str, Any]:
-        """The seed's summary entries: ``rejected_steps`` and the final ``step_scale``."""
+        """The seed's summary entries: ``rejected_steps`` (undone), ``shortened_steps`` (kept,
+        the steps after them halved) and the final ``step_scale``."""
         if not self.enabled:
             return {}
-        return {"rejected_steps": self.rejected, "step_scale": self.scale}
+        return {"rejected_steps": self.rejected, "shortened_steps": self.shortened,
+                "step_scale": self.scale}
 
 
 def set_step_scale(exp: Experiment, scale: float) -> None:
@@ -167,4 +189,4 @@ def set_step_scale(exp: Experiment, scale: float) -> None:
         exp.compiled.params = parameters(exp)
 
 
-__all__ = ["FLOOR", "Safeguard", "set_step_scale"]
+__all__ = ["FLOOR", "SHRINK", "Safeguard", "set_step_scale"]
