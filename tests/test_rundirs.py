@@ -172,7 +172,8 @@ def test_a_killed_run_reads_interrupted_and_resumes_to_the_same_numbers(tmp_path
 
 def test_a_diverging_run_exits_1_and_keeps_its_results(tmp_path):
     r = feltool("run", "two_link_standard", "--seeds", "0", "--cycles", "6", "--set",
-                "learning.rates.weights=5.0", "--out", str(tmp_path / "d"), "--no-progress")
+                "learning.update=gradient", "--set", "learning.safeguard=false", "--set",
+                "learning.rates.weights=1684.4", "--out", str(tmp_path / "d"), "--no-progress")
     assert r.returncode == 1, r.stdout + r.stderr
     assert "DIVERGED" in r.stdout
     summary = json.loads((tmp_path / "d" / "summary.json").read_text())

@@ -2,11 +2,11 @@ r"""A learning step that cannot throw a seed away (``learning.safeguard``, on by
 
 Cycle h's update moves the parameters by :math:`\Delta_h`; cycle h+1, run with them, tests the
 step. If its mean error feedback grows by more than ``learning.safeguard_growth`` over cycle
-h's (the cycle whose update it is), or the cycle diverges (:func:`feltool.runs.divergence.explain`), the step is
-undone -- the parameters cycle h ran with and the state it started from are restored --
-and taken again at half its length, as a trust region does; every later step is scaled by the
-same (halved) factor. A step after which the feedback grew by less than that factor (but more than
-:data:`SHRINK`) is kept, but the steps after it are halved too (the trust region shrinks; not
+h's (the cycle whose update it is), or the cycle diverges
+(:func:`feltool.runs.divergence.explain`), the step is undone -- the parameters cycle h ran
+with and the state it started from are restored -- and taken again at half its length, as a
+trust region does; every later step is scaled by the same (halved) factor. A step after which
+the feedback grew by less than that factor (but more than :data:`SHRINK`) is kept, but the steps after it are halved too (the trust region shrinks; not
 below the floor). A seed counts as diverged only when that factor fell below
 ``learning.safeguard_min_step``. The rejected cycle stays in metrics.csv (``rejected`` 1; its
 feedback, infinite when the cycle diverged), so cycles-to-convergence count it.
@@ -17,7 +17,8 @@ cycle's update is the engine's own, per cycle and per step alike. The growth tes
 at the cycles an event changes the world or the motion (the step did not cause that), and the
 feedback compared with is counted no lower than :data:`FLOOR` of the first cycle's (a
 converged seed's noise is no growth). A slow drift (a few per cent per cycle) is no rejected
-step: only a step that throws the cycle after it away is undone. ILC and the feedback-only baseline have no such step: off for them.
+step: only a step that throws the cycle after it away is undone. ILC and the feedback-only
+baseline have no such step: off for them.
 """
 
 from __future__ import annotations
