@@ -6,10 +6,11 @@ h's (the cycle whose update it is), or the cycle diverges
 (:func:`feltool.runs.divergence.explain`), the step is undone -- the parameters cycle h ran
 with and the state it started from are restored -- and taken again at half its length, as a
 trust region does; every later step is scaled by the same (halved) factor. A step after which
-the feedback grew by less than that factor (but more than :data:`SHRINK`) is kept, but the steps after it are halved too (the trust region shrinks; not
-below the floor). A seed counts as diverged only when that factor fell below
-``learning.safeguard_min_step``. The rejected cycle stays in metrics.csv (``rejected`` 1; its
-feedback, infinite when the cycle diverged), so cycles-to-convergence count it.
+the feedback grew by less than that factor (but more than :data:`SHRINK`) is kept, but the
+steps after it are halved too (the trust region shrinks; not below the floor). A seed counts
+as diverged only when that factor fell below ``learning.safeguard_min_step``. The rejected
+cycle stays in metrics.csv (``rejected`` 1; its feedback, infinite when the cycle diverged), so
+cycles-to-convergence count it.
 
 Both engines: the factor scales the rates the engine steps with (the learner's, the model
 learner's, and the compiled engine's ``params``, :func:`set_step_scale`), so an accepted
