@@ -174,7 +174,7 @@ def test_the_pinned_walkers_gauss_newton_update_is_the_python_engines():
 @pytest.mark.parametrize("overrides", [
     ["learning.model.update=gauss_newton", "learning.model.rate=0.5"],
     ["learning.model.features=phase_basis", "learning.model.basis=6",
-     "learning.model.step=per_step", "learning.model.rate=1e-4"],
+     "learning.model.step=per_step", "learning.model.rate=0.016667"],  # 1e-4 per sample
     ["learning.model.error=[elbow]"],
 ], ids=["regressor_gn", "phase_basis_per_step", "learned_jacobian_rows"])
 def test_compiled_model_learning_equals_the_python_engine(overrides):

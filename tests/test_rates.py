@@ -151,3 +151,21 @@ def test_a_rejected_step_restores_the_parameters_and_halves_the_step():
     finally:
         guard.finish()
     np.testing.assert_allclose(exp.learner.rates, rates0, rtol=1e-15)
+
+
+def test_a_seed_resumed_amid_rejected_steps_continues_bit_identically(tmp_path):
+    """The safeguard's state (step scale, the step it would undo) is in the checkpoint: a seed
+    stopped after cycle 4, in the middle of its undone steps, and continued to cycle 14 gives
+    the rows of the uninterrupted seed."""
+    from feltool.runs.checkpoint import Checkpointer
+
+    exp = load_experiment(STANDARD, ["learning.rates.gauss_newton=100"])
+    whole = run_seed(exp, 2, 14)
+    run_seed(exp, 2, 4, checkpoint=Checkpointer(tmp_path, 2, every=2))
+    resumed = run_seed(exp, 2, 14, checkpoint=Checkpointer(tmp_path, 2, every=2))
+    assert sum(r["rejected"] for r in whole.rows[:4]) >= 2
+    assert sum(r["rejected"] for r in whole.rows[4:]) >= 1
+    assert [r.keys() for r in resumed.rows] == [r.keys() for r in whole.rows]
+    np.testing.assert_array_equal([list(r.values()) for r in resumed.rows],
+                                  [list(r.values()) for r in whole.rows])  # (NaN == NaN here)
+    assert resumed.summary["rejected_steps"] == whole.summary["rejected_steps"]
