@@ -15,7 +15,9 @@ cycles-to-convergence count it.
 Both engines: the factor scales the rates the engine steps with (the learner's, the model
 learner's, and the compiled engine's ``params``, :func:`set_step_scale`), so an accepted
 cycle's update is the engine's own, per cycle and per step alike. The growth test is suspended
-at the cycles an event changes the world or the motion (the step did not cause that), and the
+at the cycles an event changes the world or the motion, through its transition and one cycle
+after, and at a cycle whose length differs by over 1 % from the one before (an adaptive phase
+entraining: the step did not cause that), and the
 feedback compared with is counted no lower than :data:`FLOOR` of the first cycle's (a
 converged seed's noise is no growth). A slow drift (a few per cent per cycle) is no rejected
 step: only a step that throws the cycle after it away is undone. ILC and the feedback-only
@@ -59,11 +61,16 @@ class Safeguard:
         self.growth, self.min_step = float(L.safeguard_growth), float(L.safeguard_min_step)
         self.scale, self.last_fb, self.first, self.rejected = 1.0, math.inf, None, 0
         self.shortened = 0
+        self._n: int | None = None  # the last cycle's steps (a cycle of another speed: no test)
         self.fallback: SeedState | None = None  # parameters and state to go back to
         self.delta: np.ndarray | None = None    # the last accepted step
         self.delta_m: np.ndarray | None = None
-        self._events = {ev.cycle for ev in exp.config.events}
-        self._events |= {ev.cycle for _, ev in exp.config.motion_events}
+        # the cycles whose feedback an event changes: its own, those of its transition, and
+        # the next one (compared with a cycle that was partly before the change)
+        self._events: set[int] = set()
+        for ev in [*exp.config.events, *(e for _, e in exp.config.motion_events)]:
+            span = int(getattr(ev, "transition_cycles", 0) or 0)
+            self._events.update(range(ev.cycle, ev.cycle + span + 2))
 
     def start(self) -> None:
         """Before the seed's first cycle (or its resumed one): the engines step with the
@@ -89,7 +96,11 @@ class Safeguard:
         if self.first is None:
             self.first = fb
         floor = FLOOR * self.first if math.isfinite(self.first) else 0.0
-        grew = cycle not in self._events and fb > self.growth * max(self.last_fb, floor)
+        n = out.cycle.n if out.cycle is not None else None  # the cycle's steps (its length)
+        same = cycle not in self._events and (n is None or self._n is None
+                                               or abs(n - self._n) <= 0.01 * self._n)
+        self._n = n
+        grew = same and fb > self.growth * max(self.last_fb, floor)
         if (reason or grew) and self.fallback is not None:
             self.rejected += 1
             self.scale *= 0.5
@@ -111,7 +122,7 @@ class Safeguard:
                              state.plant), True, None
         if reason:
             return None, False, reason
-        worse = (cycle not in self._events and math.isfinite(self.last_fb)
+        worse = (same and math.isfinite(self.last_fb)
                  and fb > SHRINK * max(self.last_fb, floor))
         if worse and 0.5 * self.scale >= self.min_step:  # kept, but the next steps shorter
             self.scale *= 0.5
@@ -143,8 +154,9 @@ class Safeguard:
         if not self.enabled:
             return {}
         first = np.nan if self.first is None else self.first
+        n = np.nan if self._n is None else self._n
         out = {"safeguard_scalars": np.array([self.scale, self.last_fb, first, self.rejected,
-                                              self.shortened], float)}
+                                              self.shortened, n], float)}
         if self.fallback is not None:
             out.update({"safeguard_theta": self.fallback.theta, "safeguard_q": self.fallback.q,
                         "safeguard_v": self.fallback.v, "safeguard_delta": self.delta})
@@ -157,10 +169,10 @@ class Safeguard:
         """Continue from :meth:`save`'s arrays."""
         if not self.enabled or "safeguard_scalars" not in saved:
             return
-        scale, last_fb, first, rejected, shortened = np.asarray(
+        scale, last_fb, first, rejected, shortened, n = np.asarray(
             saved["safeguard_scalars"], float).tolist()
         self.scale, self.last_fb, self.rejected = scale, last_fb, int(rejected)
-        self.shortened = int(shortened)
+        self.shortened, self._n = int(shortened), None if math.isnan(n) else int(n)
         self.first = None if math.isnan(first) else first
         if "safeguard_theta" in saved:
             self.fallback = SeedState(saved["safeguard_theta"], saved["safeguard_q"],
