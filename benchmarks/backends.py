@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from feltool.learning.rates import translate
 from feltool.runs.experiments import load_experiment
 from feltool.runs.seed import run_seed
 
@@ -198,7 +199,9 @@ def main() -> None:
     print("  |---|---|---|---|")
     scaling = []
     for basis in BASIS:
-        over = [f"primitives.basis={basis}", f"learning.rates.weights={0.2 * (10 / basis)**2}"]
+        w, _ = translate(0.2 * (10 / basis)**2, 0.0, 1.0, 100.0, basis)  # (per sample)
+        over = [f"primitives.basis={basis}", "learning.update=gradient",
+                f"learning.rates.weights={w!r}"]
         py = learning_speed("two_link_standard", over, "python", args.repeats)
         comp = learning_speed("two_link_standard", over, "compiled", args.repeats)
         scaling.append((basis, 1e6 / py, 1e6 / comp))

@@ -62,12 +62,12 @@ FIGURES = ROOT / "docs" / "figures"
 ARMS = {"standard arm": "two_link_standard", "human arm": "two_link_human_arm",
         "double pendulum": "double_pendulum_balance", "UR5": "ur5_wrist_level"}
 # Each learner's settings: the configs' FEL rates; gauss_newton takes half the
-# Levenberg-Marquardt step (the configs' gradient rates are not fractions); the ILC Q filter
+# Levenberg-Marquardt step (learning.rates.gauss_newton 0.5); the ILC Q filter
 # below the human arm's 25 Hz Nyquist frequency, and a smaller P-type gain on the UR5 (whose
 # frame-angle torque reaches three joints; at L = 1 its feedback falls, then grows again).
 SETTINGS = {
     "gradient": [],
-    "gauss_newton": ["learning.rates.weights=0.5"],
+    "gauss_newton": ["learning.rates.gauss_newton=0.5"],
     "ilc_p": [],
     "ilc_norm_optimal": [],
     "feedback_only": [],
@@ -77,7 +77,8 @@ PER_CONFIG = {("two_link_human_arm", "ilc_p"): ["ilc.cutoff_hz=10"],
               # gradient FEL on the walker: about 1 / the largest eigenvalue of J_m'J_m (the
               # torso weights' Gauss-Newton matrix in motor torques) at the first cycle, 37-55
               # on seeds 0-2, so that the step is stable; the config's own update is GN
-              ("gaits/five_link_walker", "gradient"): ["learning.rates.weights=0.02"]}
+              # (0.02 per sample: 97.156 in physical units, feltool.learning.rates)
+              ("gaits/five_link_walker", "gradient"): ["learning.rates.weights=97.156"]}
 WALKER = {"five-link walker": "gaits/five_link_walker"}
 WALKER_CYCLES = 40  # the table's cycles (the config's 150 for time: 5 learners x 10 seeds)
 WALKER_ROBUST_CYCLES = 30  # per point: gradient FEL (the slowest) undisturbed is at 0.05-0.1 by 10
@@ -263,7 +264,8 @@ def _walker_cost_of(robot: str, config: str, best) -> dict:
     q, v = exp.hybrid.initial_state(P, Pv)
     log = exp.hybrid.run_cycle(exp.dynamics, q, v, P, Pv, Pa)
     ilc = exp.config.ilc
-    p_type = PTypeILC(ilc.gain, ilc.lead_steps, ilc.cutoff_hz, ilc.order, exp.config.sim.rate_hz)
+    hz = exp.config.sim.rate_hz
+    p_type = PTypeILC(ilc.gain, round(ilc.lead_s * hz), ilc.cutoff_hz, ilc.order, hz)
     norm = NormOptimalILC(ilc.weight_error, ilc.weight_change)
     dU = np.zeros((exp.primitives.n_steps, exp.hybrid.walker.B.shape[1]))
     t0 = time.perf_counter()
@@ -298,7 +300,8 @@ def _cost_of(arm: str, config: str, best) -> dict:
     log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
     inputs, outputs = channels(exp)
     ilc = exp.config.ilc
-    p_type = PTypeILC(ilc.gain, ilc.lead_steps, ilc.cutoff_hz, ilc.order, exp.config.sim.rate_hz)
+    hz = exp.config.sim.rate_hz
+    p_type = PTypeILC(ilc.gain, round(ilc.lead_s * hz), ilc.cutoff_hz, ilc.order, hz)
     norm = NormOptimalILC(ilc.weight_error, ilc.weight_change)
     dU = np.zeros((len(Qd), len(inputs)))
 

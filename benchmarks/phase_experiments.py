@@ -36,8 +36,11 @@ def fb_of(res) -> np.ndarray:
 
 def speed_change(seeds: list[int]) -> dict:
     out = {}
-    for label, extra in (("levenberg_marquardt", ["learning.update=gauss_newton"]),
-                         ("gradient_0.2", []), ("gradient_0.1", ["learning.rates.weights=0.1"])):
+    for label, extra in (("levenberg_marquardt", ["learning.update=gauss_newton",
+                                                  "learning.rates.gauss_newton=0.2"]),
+                         ("gradient_0.2", ["learning.update=gradient"]),
+                         ("gradient_0.1", ["learning.update=gradient",
+                                           "learning.rates.weights=33.687"])):  # per sample
         exp = load_experiment(STANDARD, ["events=[{cycle: 60, period_s: 0.8}]", *extra])
         rows, curves, traces = [], [], None
         for seed in seeds:
@@ -69,9 +72,8 @@ def _converged(fb: np.ndarray) -> int | None:
 def any_period(seeds: list[int]) -> list[dict]:
     """T = 1.2345 s at 1 kHz beside the config's 1 s at 100 Hz, 150 cycles each."""
     slow = load_experiment(STANDARD, ["period_s=1.2345", "sim.rate_hz=1000",
-                                      f"learning.rates.weights={0.2 * 100 / 1234.5!r}",
-                                      f"learning.rates.goal={2e-5 * 100 / 1234.5!r}"])
-    base = load_experiment(STANDARD)
+                                      "learning.update=gradient"])  # the same rates (issue 29)
+    base = load_experiment(STANDARD, ["learning.update=gradient"])
     rows = []
     for seed in seeds:
         row = {"seed": seed}

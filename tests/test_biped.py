@@ -354,9 +354,14 @@ def test_terminal_summary_of_a_walker(tmp_path, capsys):
 def test_rate_scale_scales_one_joints_rates():
     exp = load_experiment(CONFIGS / "biped_torso.yaml",
                           ["joints.swing_hip.learn={init: demo, rate_scale: 0.02}"])
+    from feltool.learning.rates import basis_gain, per_sample_rates, samples_per_cycle
+
     rates = dict(zip(exp.learner.learned, exp.learner.rates))
-    L = exp.config.learning.rates
+    L, cfg = exp.config.learning.rates, exp.config
     for name, scale in (("swing_hip", 0.02), ("torso_hip", 1.0)):
-        sl = exp.primitives.slices[exp.joints.index(name)]
+        i = exp.joints.index(name)
+        sl, prim = exp.primitives.slices[i], exp.primitives.primitives[i]
+        w, g = per_sample_rates(L.weights, L.goal, samples_per_cycle(cfg.period_s, cfg.sim.rate_hz),
+                                basis_gain(prim.n_basis, prim.width, prim.amplitude))
         assert [rates[p] for p in range(sl.start, sl.stop)] == pytest.approx(
-            [scale * L.weights] * (sl.stop - sl.start - 1) + [scale * L.goal])
+            [scale * w] * (sl.stop - sl.start - 1) + [scale * g])

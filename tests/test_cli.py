@@ -170,7 +170,8 @@ def test_diverging_seed_is_reported_and_keeps_its_metrics(tmp_path):
     "diverged": true, and every metric up to the failing cycle; exit code 1."""
     out = tmp_path / "div"
     res = feltool("run", STANDARD, "--seeds", "0", "--cycles", "30", "--out", str(out),
-                  "--set", "learning.rates.weights=3")
+                  "--set", "learning.update=gradient", "--set", "learning.safeguard=false",
+                  "--set", "learning.rates.weights=1010.6")
     assert res.returncode == 1
     assert "DIVERGED: seed 0, cycle" in res.stdout
     assert "Traceback" not in res.stderr and "Warning" not in res.stderr

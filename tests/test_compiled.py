@@ -42,7 +42,7 @@ def test_casadi_sensitivity_matches_exact_and_finite_differences():
 
 
 @pytest.mark.parametrize("overrides", [[], ["learning.update=gauss_newton",
-                                            "learning.rates.weights=1.0"]])
+                                            "learning.rates.gauss_newton=1.0"]])
 def test_compiled_cycle_gives_the_pinocchio_metrics(overrides):
     ref = run_seed(load_experiment(STANDARD, overrides), 3, 40)
     comp = run_seed(load_experiment(STANDARD, ["backend=compiled", *overrides]), 3, 40)

@@ -44,11 +44,12 @@ def test_a_rate_too_coarse_for_the_gains_in_the_first_cycle():
 
 
 def test_a_learning_rate_too_large_is_named_with_the_feedback_that_grew():
-    reason, _ = _reason(["learning.rates.weights=3"], 30)
+    reason, _ = _reason(["learning.update=gradient", "learning.safeguard=false",
+                         "learning.rates.weights=1010.6"], 30)  # per sample 3
     cycle = int(re.match(r"seed 0, cycle (\d+): ", reason).group(1))
     assert cycle > 1 and "velocity reached" in reason, reason
     assert "likely cause: the learning step: the error feedback went from" in reason
-    assert "learning.rates.weights = 3 (goal 2e-05) is likely too large" in reason
+    assert "learning.rates.weights = 1010.6 (goal 0.002) is likely too large" in reason
 
 
 def test_weak_gains_let_the_target_fall():

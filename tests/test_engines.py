@@ -65,7 +65,7 @@ PERTURBED = "{init: perturbed, perturbation_rad: 0.02, goal_spread: 0}"
 
 
 @pytest.mark.parametrize("over", [
-    ["learning.update=gradient", "learning.rates.weights=0.002"],
+    ["learning.update=gradient", "learning.rates.weights=11.659"],  # per sample 0.002
     [f"joints.left_hip.learn={PERTURBED}", f"joints.right_hip.learn={PERTURBED}"],
 ], ids=["gradient", "three_learned_joints"])
 def test_physical_walker_updates_equal_the_python_engines(over):
@@ -126,11 +126,11 @@ def test_auto_without_a_working_compiler_runs_the_python_engine_and_says_why(tmp
 
 
 @pytest.mark.parametrize("overrides", [
-    ["learning.step=per_step", "learning.rates.weights=0.002", "learning.rates.goal=2e-7",
-     "events=[{cycle: 3, period_s: 0.8}]"],
+    ["learning.step=per_step", "learning.update=gradient", "learning.rates.weights=0.67374",
+     "learning.rates.goal=2e-5", "events=[{cycle: 3, period_s: 0.8}]"],
     ["period_s=1.2345", "events=[{cycle: 4, goal: {elbow: 0.2}}, "
                         "{cycle: 6, kind: payload, frame: tip, mass: 0.2}]"],
-    ["learning.update=gauss_newton", "learning.rates.weights=1.0", "sim.joint_limits=enforce",
+    ["learning.update=gauss_newton", "learning.rates.gauss_newton=1.0", "sim.joint_limits=enforce",
      "sim.torque_limits=saturate", "plant={friction: {shoulder: {viscous: 0.1, coulomb: 0.2, "
                                    "coulomb_velocity: 0.05}}}"],
 ], ids=["per_step_period_event", "odd_period_goal_and_payload", "gn_limits_friction"])
@@ -162,7 +162,8 @@ def test_the_pinned_walkers_gauss_newton_update_is_the_python_engines():
     """The rigid-impact walker with Levenberg-Marquardt steps (impact window, allocation,
     foot placement): the compiled engine's rows equal the Python engine's."""
     cfg = CONFIGS / "biped_torso_rigid.yaml"
-    over = ["learning.update=gauss_newton", "learning.rates.weights=0.5", "walking.poincare=false"]
+    over = ["learning.update=gauss_newton", "learning.rates.gauss_newton=0.5",
+            "walking.poincare=false"]
     ref = run_seed(load_experiment(cfg, ["backend=pinocchio", *over]), 0, 4)
     comp = run_seed(load_experiment(cfg, ["backend=compiled", *over]), 0, 4)
     assert not ref.summary["diverged"]
@@ -173,7 +174,7 @@ def test_the_pinned_walkers_gauss_newton_update_is_the_python_engines():
 @pytest.mark.parametrize("overrides", [
     ["learning.model.update=gauss_newton", "learning.model.rate=0.5"],
     ["learning.model.features=phase_basis", "learning.model.basis=6",
-     "learning.model.step=per_step", "learning.model.rate=1e-4"],
+     "learning.model.step=per_step", "learning.model.rate=0.016667"],  # 1e-4 per sample
     ["learning.model.error=[elbow]"],
 ], ids=["regressor_gn", "phase_basis_per_step", "learned_jacobian_rows"])
 def test_compiled_model_learning_equals_the_python_engine(overrides):

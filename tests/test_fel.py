@@ -37,7 +37,7 @@ def test_only_stabilizing_feedback_is_the_error_signal():
 
 def test_update_follows_eq_3_6():
     """One gradient update is rates * sum_k J_k^T e_k on the learned parameters only."""
-    exp = load_experiment(STANDARD)
+    exp = load_experiment(STANDARD, ["learning.update=gradient"])
     theta = exp.initial_parameters(0)
     n = exp.primitives.n_steps
     rng = np.random.default_rng(0)
@@ -88,8 +88,8 @@ def test_learned_feedforward_alone_nearly_balances_the_arm():
 
 
 def test_gauss_newton_converges_faster_than_gradient():
-    grad = load_experiment(STANDARD)
-    gn = load_experiment(STANDARD, ["learning.update=gauss_newton", "learning.rates.weights=1.0"])
+    grad = load_experiment(STANDARD, ["learning.update=gradient"])
+    gn = load_experiment(STANDARD, ["learning.update=gauss_newton", "learning.rates.gauss_newton=1.0"])
     for seed in (0, 4):
         c_grad = run_seed(grad, seed, 80).summary["converged_cycle"]
         c_gn = run_seed(gn, seed, 30).summary["converged_cycle"]
@@ -110,8 +110,8 @@ def test_exact_sensitivity_learns_at_least_as_fast_as_finite_difference():
 def test_per_step_update_also_learns():
     """Per-step updates (no reset of the RMP; sensitivities propagated step by step) learn too,
     more slowly per unit of rate than per-cycle updates."""
-    exp = load_experiment(STANDARD, ["learning.step=per_step", "learning.rates.weights=0.05",
-                                     "learning.rates.goal=1e-6"])
+    exp = load_experiment(STANDARD, ["learning.step=per_step", "learning.update=gradient",
+                                     "learning.rates.weights=16.844", "learning.rates.goal=1e-4"])
     res = run_seed(exp, 0, cycles=60)
     fb = [r["fb_abs_mean_error"] for r in res.rows]
     assert not res.summary["diverged"]

@@ -114,7 +114,7 @@ def test_plant_and_model_errors_name_the_yaml_path():
     with pytest.raises(ConfigError, match="learning.model.rate"):
         load_experiment(MISMATCH, ["learning.model={features: regressor}"])
     with pytest.raises(ConfigError, match="learning.model"):
-        load_experiment(MISMATCH, ["learning.step=per_step"])
+        load_experiment(MISMATCH, ["learning.step=per_step", "learning.update=gradient"])
 
 
 def test_identifiable_combinations_of_the_planar_arm():
@@ -174,7 +174,7 @@ def test_model_fel_with_phase_basis_also_learns():
 
 def test_per_step_model_update_learns():
     exp = load_experiment(MISMATCH, MODEL_ONLY + ["learning.model.step=per_step",
-                                                  "learning.model.rate=1e-6"])
+                                                  "learning.model.rate=1e-3"])  # 1e-6 per sample
     res = run_seed(exp, 0, cycles=15)
     total = [r["fb_abs_mean_total"] for r in res.rows]
     assert total[-1] < 0.1 * total[0]

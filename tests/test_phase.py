@@ -143,9 +143,9 @@ def test_a_whole_sample_clock_gives_the_golden_metrics_to_1e_10(tmp_path, backen
                 assert value == pytest.approx(float(ref[key]), rel=1e-10, abs=1e-13), key
 
 
-#: rates per sample scale with the samples per cycle: the 100 Hz rates times 100 / 1234.5
-RATE_1234 = [f"learning.rates.weights={0.2 * 100 / 1234.5!r}",
-             f"learning.rates.goal={2.0e-5 * 100 / 1234.5!r}"]
+#: the config's gradient rates, unchanged: they are means over the cycle (issue 29), no longer
+#: rescaled by hand with the samples per cycle (100 / 1234.5 before)
+RATE_1234 = ["learning.update=gradient"]
 
 
 def test_a_period_of_1_2345_s_at_1_khz_learns_on_every_seed():
@@ -175,7 +175,7 @@ def test_a_speed_change_keeps_qd_and_its_velocity_continuous():
     elsewhere in the two cycles (a jump of omega to 1.25 omega would move qdot_d of the
     shoulder by 0.82 rad/s in one step, more than twice the largest step here, 0.31)."""
     exp = load_experiment(STANDARD, ["events=[{cycle: 3, period_s: 0.8}]",
-                                     "learning.rates={weights: 0.0, goal: 0.0}"])
+                                     "learning.rates={weights: 0.0, goal: 0.0, gauss_newton: 0.0}"])
     res = run_seed(exp, 0, 4)
     t, Q, V = (res.traces[f"switch3_{k}"] for k in ("t", "q_forward", "v_forward"))
     s = int(np.flatnonzero(t == 0)[0])  # the first step of cycle 3
@@ -194,7 +194,8 @@ def test_after_a_speed_change_the_feedback_stays_below_5_percent_on_every_seed()
     error feedback is below 5 % of the first cycle's from the convergence before the change
     through every cycle after it (0 cycles above it; measured peak 1.6-4.1 %), and back below
     the last value before the change within 12 cycles (measured 8-11)."""
-    exp = load_experiment(STANDARD, [*SPEED_CHANGE, "learning.update=gauss_newton"])
+    exp = load_experiment(STANDARD, [*SPEED_CHANGE, "learning.update=gauss_newton",
+                                     "learning.rates.gauss_newton=0.2"])
     for seed in range(10):
         res = run_seed(exp, seed, 80)
         assert not res.summary["diverged"], seed
@@ -214,7 +215,7 @@ def test_amplitude_and_goal_events_start_a_transient_not_a_jump():
     settles on the new limit cycle within the cycle."""
     exp = load_experiment(STANDARD, ["events=[{cycle: 3, amplitude: {elbow: 1.3}, "
                                      "goal: {shoulder: 1.4}}]",
-                                     "learning.rates={weights: 0.0, goal: 0.0}"])
+                                     "learning.rates={weights: 0.0, goal: 0.0, gauss_newton: 0.0}"])
     res = run_seed(exp, 0, 3)
     t, Q = res.traces["switch3_t"], res.traces["switch3_q_forward"]
     V = res.traces["switch3_v_forward"]
@@ -317,6 +318,7 @@ def test_an_arm_follows_a_rhythm_of_unknown_frequency():
     error feedback of cycle 80 below 0.1 of cycle 2's (the first near the new speed) on seeds
     0-2 (measured 0.008, 0.054, 0.023)."""
     exp = load_experiment(STANDARD, ["primitives.phase=adaptive", "learning.update=gauss_newton",
+                                     "learning.rates.gauss_newton=0.2",
                                      "primitives.oscillator={input: {external: "
                                      "{frequency_hz: 1.3}}}"])
     for seed in (0, 1, 2):
@@ -439,7 +441,8 @@ def test_mechanical_phase_needs_a_physical_walker():
     ["period_s=1.005", "events=[{cycle: 4, period_s: 0.87, transition_cycles: 3}, "
                        "{cycle: 5, amplitude: {elbow: 1.2}}]"],
     ["primitives.phase=adaptive", "primitives.oscillator={input: {joint: shoulder}}"],
-    ["learning.step=per_step", "learning.rates.weights=0.002", "period_s=1.005",
+    ["learning.step=per_step", "learning.update=gradient", "learning.rates.weights=0.67374",
+     "period_s=1.005",
      "events=[{cycle: 4, period_s: 0.87, transition_cycles: 3}, {cycle: 5, goal: {shoulder: 1.5}}]"],
 ], ids=["clock-events", "adaptive", "per-step-events"])
 def test_a_resumed_seed_continues_its_phase_bit_identically(overrides, tmp_path):

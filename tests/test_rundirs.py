@@ -172,7 +172,8 @@ def test_a_killed_run_reads_interrupted_and_resumes_to_the_same_numbers(tmp_path
 
 def test_a_diverging_run_exits_1_and_keeps_its_results(tmp_path):
     r = feltool("run", "two_link_standard", "--seeds", "0", "--cycles", "6", "--set",
-                "learning.rates.weights=5.0", "--out", str(tmp_path / "d"), "--no-progress")
+                "learning.update=gradient", "--set", "learning.safeguard=false", "--set",
+                "learning.rates.weights=1684.4", "--out", str(tmp_path / "d"), "--no-progress")
     assert r.returncode == 1, r.stdout + r.stderr
     assert "DIVERGED" in r.stdout
     summary = json.loads((tmp_path / "d" / "summary.json").read_text())
@@ -193,10 +194,12 @@ def test_missing_the_success_criterion_exits_1(tmp_path):
 
 def test_a_sweep_with_a_diverging_point_exits_1_and_names_it(tmp_path):
     out = tmp_path / "sweep"
-    r = feltool("sweep", "two_link_standard", "--grid", "learning.rates.weights=0.2,5.0",
+    r = feltool("sweep", "two_link_standard", "--grid", "learning.update=gradient", "--grid",
+                "learning.safeguard=false", "--grid", "learning.rates.weights=67.374,1684.4",
                 "--seeds", "0", "--cycles", "4", "--out", str(out), "--no-progress")
     assert r.returncode == 1, r.stdout + r.stderr
-    assert "point 1 (learning.rates.weights=5.0), seed 0:" in r.stdout, r.stdout
+    assert "point 1 (" in r.stdout and "learning.rates.weights=1684.4), seed 0:" in r.stdout, \
+        r.stdout
     assert "point 0 " not in r.stdout
     assert run_state(out, "sweep.json") == "complete"
     # a sweep directory belongs to one command too

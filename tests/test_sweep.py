@@ -16,7 +16,8 @@ from feltool.runs.sweep import grid_points, parse_grid, run_sweep
 from .conftest import CONFIGS, feltool
 
 STANDARD = str(CONFIGS / "two_link_standard.yaml")
-GRID = ["--grid", "learning.rates.weights=0.1,0.2", "--grid", "joints.elbow.gains.kp=50,100"]
+GRID = ["--grid", "learning.update=gradient", "--grid", "learning.rates.weights=33.687,67.374",
+        "--grid", "joints.elbow.gains.kp=50,100"]  # (per sample: 0.1, 0.2)
 
 
 def rows(path):
@@ -42,7 +43,7 @@ def local_sweep(tmp_path_factory):
 def test_local_sweep_writes_points_csv_and_figure(local_sweep):
     table = rows(local_sweep / "sweep.csv")
     assert len(table) == 4 * 2
-    assert {r["learning.rates.weights"] for r in table} == {"0.1", "0.2"}
+    assert {r["learning.rates.weights"] for r in table} == {"33.687", "67.374"}
     for col in ("point", "seed", "fb_initial", "fb_final", "converged_cycle", "diverged"):
         assert col in table[0]
     for i in range(4):
@@ -52,8 +53,8 @@ def test_local_sweep_writes_points_csv_and_figure(local_sweep):
     final = {(r["learning.rates.weights"], r["joints.elbow.gains.kp"], r["seed"]): float(r["fb_final"])
              for r in table}
     for (rate, kp, seed), fb in final.items():
-        if rate == "0.2":
-            assert fb < final[("0.1", kp, seed)]
+        if rate == "67.374":
+            assert fb < final[("33.687", kp, seed)]
 
 
 def test_bad_grid_value_fails_before_running(tmp_path):

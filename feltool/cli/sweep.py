@@ -57,8 +57,8 @@ _ROW_FIELDS = {"point", "seed", "fb_initial", "fb_final", "converged_cycle", "di
 def add_command(sub) -> None:
     """Add ``feltool sweep`` to the subparsers ``sub``."""
     p = subcommand(sub, "sweep", "run a grid of config overrides over seeds",
-             "  feltool sweep two_link_standard --grid learning.rates.weights=0.1,0.2 --seeds 0-9\n"
-             "  feltool sweep two_link_standard --grid learning.rates.weights=0.1,0.2 \\\n"
+             "  feltool sweep two_link_standard --grid learning.rates.gauss_newton=0.5,1.0 --seeds 0-9\n"
+             "  feltool sweep two_link_standard --grid learning.rates.gauss_newton=0.5,1.0 \\\n"
              "      --grid joints.elbow.gains.kp=50,100 --scheduler tcp://10.0.0.5:8786\n"
              "  feltool sweep --resume runs/two_link_standard-sweep-20261201T120000Z",
              exit_codes=True)

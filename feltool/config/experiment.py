@@ -36,8 +36,8 @@ class SweepConfig(Strict):
     """A grid for ``feltool sweep`` (ignored by ``feltool run``)."""
 
     grid: dict[str, list[Any]] = Field(default_factory=dict, description="Dotted config paths "
-                                       "and the values to try, e.g. {learning.rates.weights: "
-                                       "[0.1, 0.2]}; the product of all is run (at most "
+                                       "and the values to try, e.g. {learning.rates.gauss_newton: "
+                                       "[0.5, 1.0]}; the product of all is run (at most "
                                        f"{MAX_SWEEP_POINTS} points).")
 
 

@@ -58,14 +58,20 @@ class ModelLearningConfig(Strict):
 
 
 class Rates(Strict):
-    """Learning rates alpha of eq. 3.6, separate for weights and goal."""
+    """Learning rates alpha of eq. 3.6 in physical units (feltool.learning.rates): the rates of
+    the mean over the cycle, the weights' divided by the basis's gain, so that one value means
+    the same step at any sim.rate_hz, period_s and primitives.basis."""
 
-    weights: NonNegFloat = Field(0.15, le=MAX_RATE, description="Rate for the RMP weights "
-                                 "(gradient) or the fraction of the Levenberg-Marquardt step "
-                                 f"taken (gauss_newton); at most {MAX_RATE:g}.")
-    goal: NonNegFloat = Field(2.0e-5, le=MAX_RATE, description="Rate for the RMP goal (always "
-                              "gradient). The update sums over a cycle's samples, so rates "
-                              f"scale with rate_hz; at most {MAX_RATE:g}.")
+    weights: NonNegFloat = Field(50.0, le=MAX_RATE, description="Rate for the RMP weights of "
+        "the gradient step (update: gradient): Delta w = rates.weights / kappa_0 * mean over "
+        "the cycle of J_w^T e, kappa_0 the basis's gain (docs/theory.md, eq. 3.6) [rad/(N m)^2 "
+        f"per cycle]; independent of rate_hz, period_s and basis; at most {MAX_RATE:g}.")
+    goal: NonNegFloat = Field(2.0e-3, le=MAX_RATE, description="Rate for the RMP goal "
+        "(always the gradient step): Delta g = rates.goal * mean over the cycle of J_g^T e "
+        f"[rad/(N m)^2 per cycle]; independent of rate_hz and period_s; at most {MAX_RATE:g}.")
+    gauss_newton: NonNegFloat = Field(1.0, le=MAX_RATE, description="update: gauss_newton: "
+        "the fraction of the Levenberg-Marquardt step taken on the weights [-] (invariant to "
+        f"the sampling and the basis by construction); at most {MAX_RATE:g}.")
 
 
 class LearningConfig(Strict):
@@ -75,8 +81,10 @@ class LearningConfig(Strict):
         "stabilizing", description="Error signal e: the stabilizing feedback (fully actuated "
         "robots), all feedback (underactuated robots), or a list of joints whose feedback counts.")
     update: Literal["gradient", "gauss_newton", "ilc_p", "ilc_norm_optimal", "feedback_only"] = \
-        Field("gradient", description="gradient: eq. 3.6; gauss_newton: a Levenberg-Marquardt "
-              "step on the weights (goal stays on gradient); ilc_p: P-type ILC of a per-sample "
+        Field("gauss_newton", description="gauss_newton (default, the fastest to converge on "
+              "the shipped configs): a Levenberg-Marquardt step on the weights (rates."
+              "gauss_newton; goal stays on gradient); gradient: the thesis's eq. 3.6 "
+              "(rates.weights); ilc_p: P-type ILC of a per-sample "
               "feedforward torque with a zero-phase Q filter; ilc_norm_optimal: norm-optimal ILC "
               "on the lifted cycle model of the known model; feedback_only: no learning (the "
               "baseline). The ILC settings are in `ilc` (docs/comparison.md).")
@@ -86,6 +94,16 @@ class LearningConfig(Strict):
     damping: PositiveFloat = Field(1.0e-2, le=MAX_DAMPING, description="Levenberg-Marquardt "
                                    "damping, relative to the mean diagonal of J^T J [-]; at most "
                                    f"{MAX_DAMPING:g}.")
+    safeguard: bool = Field(True, description="Undo a learning step that makes the next "
+        "cycle's mean error feedback exceed safeguard_growth times that of the cycle whose "
+        "update it is, or diverge: the parameters before the step are restored and the step halved (a trust "
+        "region); a seed diverges only when the step fell below safeguard_min_step "
+        "(feltool.runs.safeguard). false: the plain eq. 3.6 (the thesis's runs).")
+    safeguard_growth: float = Field(2.0, gt=1.0, le=1.0e6, description="The factor of growth "
+        "of the mean error feedback from one cycle to the next that rejects the step between "
+        "them [-].")
+    safeguard_min_step: float = Field(1.0e-3, gt=0.0, lt=1.0, description="The smallest step "
+        "scale (halved at every rejected step) before the seed counts as diverged [-].")
     sensitivity: Literal["exact", "finite_difference", "casadi"] = Field("exact", description=
         "How d u_ff / d theta is computed: exact (RMP sensitivity x Pinocchio's RNEA "
         "derivatives), the thesis's numerical differentiation, or CasADi's algorithmic "
@@ -116,9 +134,11 @@ class ILCConfig(Strict):
     allocated command (feltool.engines.ilc_walker)."""
 
     gain: NonNegFloat = Field(1.0, description="ilc_p: learning gain L of "
-                              "u_{h+1} = Q(u_h + L e_h) [-] (error and input are torques).")
-    lead_steps: int = Field(0, ge=0, le=100_000, description="ilc_p: phase lead of the error "
-                            "in samples (u_h^k is corrected by e_h^{k+lead}) [-].")
+                              "u_{h+1} = Q(u_h + L e_h) [-] (error and input are torques at the "
+                              "same instant, so L is independent of the sampling).")
+    lead_s: NonNegFloat = Field(0.0, le=1.0e3, description="ilc_p: phase lead of the error "
+                                "in [s] (u_h(t) is corrected by e_h(t + lead), rounded to whole "
+                                "samples; time, so that it means the same at any rate_hz).")
     cutoff_hz: PositiveFloat | None = Field(20.0, description="ilc_p: cutoff of the zero-phase "
         "Butterworth Q filter in [Hz] (run forwards and backwards over the periodic cycle); "
         "null: no filter.")

@@ -52,8 +52,8 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int,
     state = {"dU": np.zeros((n, len(inputs))), "cycle": 0}
     dloop = disturbed_loop(exp)  # None without a disturbances block
     settings = cfg.ilc
-    p_type = PTypeILC(settings.gain, settings.lead_steps, settings.cutoff_hz, settings.order,
-                      cfg.sim.rate_hz)
+    p_type = PTypeILC(settings.gain, round(settings.lead_s * cfg.sim.rate_hz),
+                      settings.cutoff_hz, settings.order, cfg.sim.rate_hz)
     norm_opt = NormOptimalILC(settings.weight_error, settings.weight_change)
 
     def run(theta, q, v, plant, theta_m=None):

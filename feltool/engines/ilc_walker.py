@@ -313,7 +313,8 @@ def cycle_runner(exp: Experiment, theta0: np.ndarray, seed: int) -> Callable:
     m = loop.walker.B.shape[1]
     state = {"dU": np.zeros((exp.primitives.n_steps, m)), "cycle": 0}
     ilc = cfg.ilc
-    p_type = PTypeILC(ilc.gain, ilc.lead_steps, ilc.cutoff_hz, ilc.order, cfg.sim.rate_hz)
+    p_type = PTypeILC(ilc.gain, round(ilc.lead_s * cfg.sim.rate_hz), ilc.cutoff_hz, ilc.order,
+                      cfg.sim.rate_hz)
     norm_opt = NormOptimalILC(ilc.weight_error, ilc.weight_change)
 
     def run(theta, q, v, plant, theta_m=None):

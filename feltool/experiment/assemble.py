@@ -24,6 +24,7 @@ from feltool.experiment.demos import demo_trajectory, positions_series
 from feltool.experiment.experiment import Experiment
 from feltool.learning.fel import FEL_UPDATES, FeedbackErrorLearner
 from feltool.learning.model import ModelLearner, PhaseBasisFeatures, RegressorFeatures
+from feltool.learning.rates import basis_gain, per_sample_rates, samples_per_cycle
 from feltool.learning.sensitivity import CasadiJacobian
 from feltool.motion.motion import motion_problems, refuse_varying_phase
 from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive
@@ -262,7 +263,12 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
         learned += idx
         is_goal += [False] * (len(idx) - 1) + [True]
         scale = jc.learn.rate_scale
-        rates += [scale * L.rates.weights] * (len(idx) - 1) + [scale * L.rates.goal]
+        prim = primitives.primitives[i]
+        w_rate, g_rate = per_sample_rates(  # physical units -> the sums' (learning.rates)
+            L.rates.weights, L.rates.goal, samples_per_cycle(cfg.period_s, cfg.sim.rate_hz),
+            basis_gain(prim.n_basis, prim.width, prim.amplitude),
+            L.rates.gauss_newton if L.update == "gauss_newton" else None)
+        rates += [scale * w_rate] * (len(idx) - 1) + [scale * g_rate]
         center = jc.learn.goal_center if jc.learn.goal_center is not None else (
             float(centers[i]) if stabilizing[i] else float(goals[i]))
         scale = (jc.learn.perturbation_rad if jc.learn.init == "perturbed"
@@ -423,7 +429,13 @@ def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actua
                                                         f"{', '.join(unknown)}")],
                               str(source) if source else None)
         mask = np.array([1.0 if n in M.error else 0.0 for n in joints])
-    return ModelLearner(features, mask * actuated, M.rate, M.update, M.step, M.damping)
+    # gradient: the rate of the mean over the cycle (feltool.learning.rates), the sums get
+    # rate / (N kappa): the normalised phase basis passes 1 / basis of the mean error (kappa),
+    # the regressor is physical (1); gauss_newton: the fraction of the step, unscaled
+    kappa = 1.0 / M.basis if M.features == "phase_basis" else 1.0
+    rate = M.rate if M.update == "gauss_newton" else \
+        M.rate / (samples_per_cycle(cfg.period_s, cfg.sim.rate_hz) * kappa)
+    return ModelLearner(features, mask * actuated, rate, M.update, M.step, M.damping)
 
 
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:

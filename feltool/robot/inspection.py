@@ -305,7 +305,7 @@ def config_skeleton(robot: Robot, q: np.ndarray | None = None) -> str:
               "  #   target: {frame: LINK, vector: [0, 0, 1], about: [0, 1, 0], value: 0.0}",
               "learning:   # a Levenberg-Marquardt step (its rate a fraction, whatever the "
               "robot's scale); the goal fixed",
-              "  {error: stabilizing, update: gauss_newton, rates: {weights: 0.3, goal: 0.0}}",
+              "  {error: stabilizing, update: gauss_newton, rates: {gauss_newton: 0.3, goal: 0.0}}",
               "seeds: 2"]
     if not free:
         lines.insert(0, "# this robot has no joint with one coordinate: nothing can move")

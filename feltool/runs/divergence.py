@@ -37,7 +37,8 @@ def explain(exp: Experiment, out: CycleOutcome, cycle: int,
         return (f"the learning update after the cycle made {bad} non-finite (NaN or infinite) "
                 f"while the cycle itself stayed finite; the last finite parameters are kept; "
                 f"likely cause: the step of learning.update {L.update} (learning.rates: "
-                f"weights {L.rates.weights:g}, goal {L.rates.goal:g}) is too large or "
+                f"weights {L.rates.weights:g}, gauss_newton {L.rates.gauss_newton:g}, goal "
+                f"{L.rates.goal:g}) is too large or "
                 "ill-conditioned for this robot")
     return f"{_runaway(exp, out)}; likely cause: {_cause(exp, cycle, rows)}"
 
@@ -141,7 +142,10 @@ def _cause(exp: Experiment, cycle: int, rows: list[dict[str, Any]]) -> str:
                  f"{norms[0]:.3g} to {norms[-1]:.3g}")
         hint = "lower it" + (", or use learning.update: gauss_newton" if L.update == "gradient"
                              else ", or raise learning.damping")
-        return (f"the learning step: {trend}; learning.rates.weights = {L.rates.weights:g} "
-                f"(goal {L.rates.goal:g}) is likely too large for this robot ({hint})")
+        hint += "" if L.safeguard else ", or turn learning.safeguard on"
+        field = "weights" if L.update == "gradient" else "gauss_newton"
+        return (f"the learning step: {trend}; learning.rates.{field} = "
+                f"{getattr(L.rates, field):g} (goal {L.rates.goal:g}) is likely too large for "
+                f"this robot ({hint})")
     return (f"learning.update {L.update} after {len(rows)} cycles: its step (learning.rates, "
             "ilc.gain) is likely too large, or the gains too weak for the learned motion")

@@ -186,11 +186,15 @@ class SeedCheckpoints:
         run_cycle: The cycle runner (its own state: RMP states, an ILC's sequence, the
             motion).
         cycles: The cycles the seed is to run.
+        safeguard: The seed's :class:`~feltool.runs.safeguard.Safeguard` (its step scale and
+            the step it would undo are saved too), or None.
     """
 
-    def __init__(self, checkpointer: Checkpointer, record: SeedRecord, run_cycle, cycles: int):
+    def __init__(self, checkpointer: Checkpointer, record: SeedRecord, run_cycle, cycles: int,
+                 safeguard=None):
         self.checkpointer, self.record = checkpointer, record
         self.run_cycle, self.cycles = run_cycle, cycles
+        self.safeguard = safeguard  # (feltool.runs.safeguard.Safeguard: its own state)
 
     def restore(self) -> tuple[int, SeedState] | None:
         """The last checkpoint (what :meth:`save` wrote) put back: the record's rows and the
@@ -205,6 +209,8 @@ class SeedCheckpoints:
                 self.run_cycle.rmp_states[int(key)] = (x.copy(), S.copy())
         if hasattr(self.run_cycle, "restore_state"):  # ILC sequence, disturbance state, motion
             self.run_cycle.restore_state(saved)
+        if self.safeguard is not None:
+            self.safeguard.restore(saved)
         return saved["cycle"], SeedState(saved["theta"], saved["q"], saved["v"],
                                          saved.get("model_theta"))
 
@@ -215,6 +221,8 @@ class SeedCheckpoints:
             arrays["model_theta"] = state.theta_m
         if hasattr(self.run_cycle, "extra_state"):
             arrays.update(self.run_cycle.extra_state())
+        if self.safeguard is not None:
+            arrays.update(self.safeguard.save())
         states = getattr(self.run_cycle, "rmp_states", None)
         if states is not None:
             keys = sorted(states)

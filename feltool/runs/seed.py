@@ -38,6 +38,7 @@ from feltool.plant.events import changed_model, plant_for_cycle
 from feltool.runs.checkpoint import Checkpointer
 from feltool.runs.divergence import explain as explain_divergence
 from feltool.runs.observers import Callback, SeedCheckpoints, SeedRecord
+from feltool.runs.safeguard import Safeguard
 
 
 @dataclass
@@ -110,7 +111,8 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     observers: list = [record]
     observers += [Callback(progress)] if progress is not None else []
     observers += [Callback(on_cycle, with_trace=True)] if on_cycle is not None else []
-    saver = SeedCheckpoints(checkpoint, record, run_cycle, cycles) if checkpoint else None
+    guard = Safeguard(exp)  # learning.safeguard: undo a step that throws the seed away
+    saver = SeedCheckpoints(checkpoint, record, run_cycle, cycles, guard) if checkpoint else None
     observers += [saver] if saver is not None else []
     start = 1
     restored = saver.restore() if saver is not None else None
@@ -120,22 +122,28 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     record.started = time.perf_counter()
     state.plant = _plant_at_start(exp, start)
     reason, out = None, None
-    for cycle in range(start, cycles + 1):
-        if cycle > start:
-            state.plant = _plant_for_cycle(exp, cycle) or state.plant
-        t_cycle = time.perf_counter()
-        if motion is not None:
-            state.theta = motion.apply_events(cycle, state.theta)
-        out = run_cycle(state.theta, state.q, state.v, state.plant, state.theta_m)
-        record.count(out, time.perf_counter() - t_cycle)
-        reason = explain_divergence(exp, out, cycle, record.rows)
-        if reason:
-            break
-        row = record.row(cycle, out, state.theta, state.theta_m)
-        state = SeedState(out.theta_next, out.q_end, out.v_end, out.theta_m_next, state.plant)
-        for observer in observers:
-            observer.after_cycle(cycle, out, state, row)
+    guard.start()
+    try:
+        for cycle in range(start, cycles + 1):
+            if cycle > start:
+                state.plant = _plant_for_cycle(exp, cycle) or state.plant
+            t_cycle = time.perf_counter()
+            if motion is not None:
+                state.theta = motion.apply_events(cycle, state.theta)
+            out = run_cycle(state.theta, state.q, state.v, state.plant, state.theta_m)
+            record.count(out, time.perf_counter() - t_cycle)
+            nxt, rejected, reason = guard.judge(cycle, out, state,
+                                                explain_divergence(exp, out, cycle, record.rows))
+            if nxt is None:
+                break
+            row = guard.row(record.row(cycle, out, state.theta, state.theta_m), rejected)
+            state = nxt
+            for observer in observers:
+                observer.after_cycle(cycle, out, state, row)
+    finally:
+        guard.finish()
     summary = record.summary(state, reason, cycles, compile_s, out)
+    summary.update(guard.summary())
     if saver is not None:
         saver.finish(state, reason)
     return SeedResult(seed, record.rows, summary, record.parameters(state, run_cycle),

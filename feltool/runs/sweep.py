@@ -1,6 +1,6 @@
 """Parameter sweeps: the product of a grid of config overrides, every point over every seed.
 
-``feltool sweep CONFIG --grid learning.rates.weights=0.1,0.2 --grid joints.elbow.gains.kp=50,100``
+``feltool sweep CONFIG --grid learning.rates.gauss_newton=0.5,1.0 --grid joints.elbow.gains.kp=50,100``
 (or a ``sweep: {grid: {...}}`` block in the YAML) writes::
 
     SWEEP_DIR/sweep.json          the grid, seeds, cycles and points (for --resume)
