@@ -45,7 +45,7 @@ GAIN_HZ = 2.0
 RATE_PER_HZ = 100.0
 #: The learning block of a config that has none.
 LEARNING = {"error": "all_feedback", "update": "gauss_newton", "error_space": "motors",
-            "error_estimate": "inverse_dynamics", "rates": {"weights": 0.3, "goal": 0.0}}
+            "error_estimate": "inverse_dynamics", "rates": {"gauss_newton": 0.3, "goal": 0.0}}
 
 
 def critically_damped(inertia: float, rate_hz: float, hz: float = GAIN_HZ) -> dict[str, float]:
