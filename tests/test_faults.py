@@ -396,11 +396,31 @@ def test_non_finite_parameters_are_a_divergence_with_its_reason(engine, cycle, m
     """Also in the last cycle (4 of 4), which no later cycle would catch."""
     monkeypatch.setenv("FELTOOL_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     _nan_after(monkeypatch, cycle)
-    result = run_seed(load_experiment("two_link_standard", [f"backend={engine}"]), 0, 4)
+    result = run_seed(load_experiment("two_link_standard", [f"backend={engine}",
+                                                            "learning.safeguard=false"]), 0, 4)
     s = result.summary
     assert s["diverged"] and s["cycles"] == cycle - 1
     assert f"cycle {cycle}: the learning update after the cycle made elbow.weights (1 of 10) " \
            "non-finite" in s["diverged_reason"]
+    assert all(np.isfinite(v).all() for v in result.params.values())
+
+
+@pytest.mark.parametrize("engine", ["pinocchio", "compiled"])
+def test_the_safeguard_undoes_a_non_finite_update_and_the_seed_goes_on(engine, monkeypatch,
+                                                                       tmp_path_factory):
+    """learning.safeguard (the default): the NaN step of cycle 2 is undone on the spot (cycle 3
+    runs again from cycle 2's parameters and state, at half the step), counted, and the seed
+    learns on to its last cycle with finite parameters."""
+    monkeypatch.setenv("FELTOOL_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+    _nan_after(monkeypatch, 2)
+    result = run_seed(load_experiment("two_link_standard", [f"backend={engine}"]), 0, 6)
+    s = result.summary
+    assert not s["diverged"] and s["cycles"] == 6
+    assert s["rejected_steps"] == 1 and s["step_scale"] == 0.5 ** (1 + s["shortened_steps"])
+    assert [row["rejected"] for row in result.rows] == [0, 1, 0, 0, 0, 0]
+    fb = [row["fb_abs_mean_error"] for row in result.rows]
+    assert fb[2] == pytest.approx(fb[1], rel=1e-9)  # cycle 3 is cycle 2 again
+    assert fb[5] < fb[2]
     assert all(np.isfinite(v).all() for v in result.params.values())
 
 
@@ -409,7 +429,7 @@ def test_a_run_with_non_finite_parameters_exits_1_and_says_diverged(tmp_path, mo
     _nan_after(monkeypatch, 3)
     out = tmp_path / "run"
     code, stdout, err = _main(["run", "two_link_standard", *SHORT, "--workers", "1", "--out",
-                               str(out)], capsys)
+                               str(out), "--set", "learning.safeguard=false"], capsys)
     assert code == 1 and "Traceback" not in err, err
     assert "DIVERGED: seed 0, cycle 3: the learning update" in stdout
     summary = json.loads((out / "summary.json").read_text())

@@ -6,11 +6,13 @@ h's (the cycle whose update it is), or the cycle diverges
 (:func:`feltool.runs.divergence.explain`), the step is undone -- the parameters cycle h ran
 with and the state it started from are restored -- and taken again at half its length, as a
 trust region does; every later step is scaled by the same (halved) factor. A step after which
-the feedback grew by less than that factor (but more than :data:`SHRINK`) is kept, but the
-steps after it are halved too (the trust region shrinks; not below the floor). A seed counts
+the feedback grew by less than that factor (but more than :data:`SHRINK`) is kept, and with
+the Gauss-Newton update (whose rise is an overshoot of its fraction) the steps after it are
+halved too (the trust region shrinks; not below the floor). A seed counts
 as diverged only when that factor fell below ``learning.safeguard_min_step``. The rejected
 cycle stays in metrics.csv (``rejected`` 1; its feedback, infinite when the cycle diverged), so
-cycles-to-convergence count it.
+cycles-to-convergence count it. An update that makes the parameters non-finite after a cycle that ran
+well is undone at once: the cycle runs again from its parameters and state, the steps halved.
 
 Both engines: the factor scales the rates the engine steps with (the learner's, the model
 learner's, and the compiled engine's ``params``, :func:`set_step_scale`), so an accepted
@@ -61,6 +63,10 @@ class Safeguard:
         self.growth, self.min_step = float(L.safeguard_growth), float(L.safeguard_min_step)
         self.scale, self.last_fb, self.first, self.rejected = 1.0, math.inf, None, 0
         self.shortened = 0
+        # Gauss-Newton's step is a fraction of the model's full step: a rise after a kept step
+        # is its overshoot (a fraction over 1), which a trust region shrinks; the gradient's
+        # rise is as often the walker's impacts' noise, and only a throwing-away step counts
+        self.trust = L.update == "gauss_newton"
         self._n: int | None = None  # the last cycle's steps (a cycle of another speed: no test)
         self.fallback: SeedState | None = None  # parameters and state to go back to
         self.delta: np.ndarray | None = None    # the last accepted step
@@ -100,6 +106,19 @@ class Safeguard:
         same = cycle not in self._events and (n is None or self._n is None
                                                or abs(n - self._n) <= 0.01 * self._n)
         self._n = n
+        if out.finite and not _finite_update(out):
+            # the cycle ran well, its own update is what broke: run it again from the same
+            # parameters and state, with the steps at half the length
+            self.rejected += 1
+            self.scale *= 0.5
+            if self.scale < self.min_step:
+                return None, True, (f"learning.safeguard: {self.rejected} steps undone, the "
+                                    f"step scale {self.scale:.3g} fell below "
+                                    f"learning.safeguard_min_step {self.min_step:g}; last: "
+                                    f"{reason}")
+            set_step_scale(self.exp, self.scale)
+            return SeedState(state.theta, state.q, state.v, state.theta_m,
+                             state.plant), True, None
         grew = same and fb > self.growth * max(self.last_fb, floor)
         if (reason or grew) and self.fallback is not None:
             self.rejected += 1
@@ -124,7 +143,7 @@ class Safeguard:
             return None, False, reason
         worse = (same and math.isfinite(self.last_fb)
                  and fb > SHRINK * max(self.last_fb, floor))
-        if worse and 0.5 * self.scale >= self.min_step:  # kept, but the next steps shorter
+        if worse and self.trust and 0.5 * self.scale >= self.min_step:  # kept, next ones shorter
             self.scale *= 0.5
             self.shortened += 1
             set_step_scale(self.exp, self.scale)
@@ -186,6 +205,12 @@ class Safeguard:
             return {}
         return {"rejected_steps": self.rejected, "shortened_steps": self.shortened,
                 "step_scale": self.scale}
+
+
+def _finite_update(out: CycleOutcome) -> bool:
+    """Whether the parameters ``out``'s update gives are all finite."""
+    return bool(np.isfinite(out.theta_next).all()) and (
+        out.theta_m_next is None or bool(np.isfinite(out.theta_m_next).all()))
 
 
 def set_step_scale(exp: Experiment, scale: float) -> None:
