@@ -3,8 +3,10 @@ r"""A robot's URDF compiled by MuJoCo (``mujoco.MjSpec``): the plant of ``plant:
 The same URDF the known model (Pinocchio) reads is parsed by MuJoCo's own URDF importer and
 compiled with these settings, so that without contacts MuJoCo's dynamics are the URDF's:
 
-* the URDF's inertias exactly (``inertiafromgeom`` off, no ``boundmass``/``boundinertia``,
-  ``balanceinertia`` off), fixed links kept as bodies (``fusestatic`` off), visuals discarded;
+* the URDF's inertias exactly (``inertiafromgeom`` off, ``balanceinertia`` off, no
+  ``boundmass``; ``boundinertia`` :data:`MIN_INERTIA`, which MuJoCo needs for a point mass's
+  zero rotational inertia and which changes no inertia a real body has), fixed links kept as
+  bodies (``fusestatic`` off), visuals discarded;
 * joint limits off (feltool counts and reports the limits itself, ``sim.joint_limits``);
   damping and dry friction (``frictionloss``) from the URDF's ``<dynamics>``; armature 0
   (a URDF has none);
@@ -35,6 +37,7 @@ import numpy as np
 from feltool.errors import RobotError
 from feltool.robot.robot import Robot
 
+MIN_INERTIA = 1e-9        #: smallest principal moment of inertia [kg m^2] (MuJoCo's boundinertia)
 FOOT_RADIUS = 0.0005      #: foot sphere radius [m]
 TIMECONST = 0.002         #: contact solref time constant [s] (raised to two timesteps)
 DAMPRATIO = 1.0           #: contact solref damping ratio [-]
@@ -147,7 +150,8 @@ class MujocoPlant:
 
 
 def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
-                   feet: dict[str, int] | None = None, friction: float = 1.0) -> MujocoPlant:
+                   feet: dict[str, int] | None = None, friction: float = 1.0,
+                   gravity: np.ndarray | None = None) -> MujocoPlant:
     """The URDF of ``robot`` compiled by MuJoCo (module doc), stepping by ``timestep`` [s].
 
     Args:
@@ -158,6 +162,7 @@ def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
             or None (a fixed base, or a URDF with its own base joints).
         feet: foot name -> Pinocchio frame id of its contact point (adds floor and spheres).
         friction: the feet's friction coefficient against the floor [-].
+        gravity: the world's gravity ``(3,)`` in [m/s^2] (default the robot model's).
 
     Raises:
         RobotError: when MuJoCo cannot compile the URDF or its joints do not match.
@@ -172,13 +177,13 @@ def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
     c = spec.compiler
     c.fusestatic, c.discardvisual, c.balanceinertia = False, True, False
     c.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
-    c.boundmass = c.boundinertia = 0.0
+    c.boundmass, c.boundinertia = 0.0, MIN_INERTIA
     o = spec.option
     o.timestep = timestep
     o.integrator = mujoco.mjtIntegrator.mjINT_EULER
     o.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
     o.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    o.gravity = np.array(robot.model.gravity.linear)
+    o.gravity = np.array(robot.model.gravity.linear if gravity is None else gravity, float)
     for j in spec.joints:
         j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
         j.armature = 0.0
