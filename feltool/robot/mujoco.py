@@ -22,7 +22,8 @@ and one small sphere per foot (:data:`FOOT_RADIUS`) centred on the foot point; t
 lies :data:`FOOT_RADIUS` below z = 0, so a foot point at z = 0 touches it. Only feet and floor
 collide (every other geom's ``contype``/``conaffinity`` is 0). MuJoCo's soft contacts: an
 elliptic friction cone with the friction coefficient ``walking.friction``, ``solref``
-(:data:`TIMECONST`, damping ratio 1; at least two timesteps), ``solimp``
+(:data:`TIMECONST`, at least two timesteps, and damping ratio :data:`DAMPRATIO`: critically
+damped, the soft impact of a straight leg rebounds), ``solimp``
 :data:`SOLIMP`. Joints are matched by name (MuJoCo orders them its own way).
 """
 
@@ -40,7 +41,7 @@ from feltool.robot.robot import Robot
 MIN_INERTIA = 1e-9        #: smallest principal moment of inertia [kg m^2] (MuJoCo's boundinertia)
 FOOT_RADIUS = 0.0005      #: foot sphere radius [m]
 TIMECONST = 0.002         #: contact solref time constant [s] (raised to two timesteps)
-DAMPRATIO = 1.0           #: contact solref damping ratio [-]
+DAMPRATIO = 2.0           #: contact solref damping ratio [-] (overdamped: no rebound)
 SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)  #: contact solimp (d0, dwidth, width [m], midpoint, power)
 
 
