@@ -7,9 +7,9 @@ walkers' configs) and ``designed`` (every motor and the torso at the design, ``i
 every one learned: the only thing to learn is what MuJoCo's world does differently; this start
 draws nothing at random, so every seed is the same run and it runs once). Per seed:
 whether every step walked (MuJoCo's contact checks on), the torso's RMS from its target in the
-last cycle, the summed feedback of the first and last cycles and their ratio, and the share of
-the last cycle's feedback that falls in the 40 ms after each touchdown (the soft impact's
-transient, the cause where the ratio stays above 0.15).
+last cycle, the summed feedback of the first and last cycles and their ratio, the share of
+the last cycle's feedback that falls in the 40 ms after each touchdown, and the last cycle's
+feedback over time (the soft impact's transient: the cause where the ratio stays above 0.15).
 
 Usage::
 
@@ -51,6 +51,7 @@ def one(job: tuple[str, str, int, int]) -> dict:
     config, start, seed, cycles = job
     exp = load_experiment(config, overrides(Path(config), start))
     share: dict[str, float] = {}
+    profile: list[float] = []
 
     def on_cycle(cycle, log, Qd, fb):
         if cycle not in (1, cycles):
@@ -61,6 +62,8 @@ def one(job: tuple[str, str, int, int]) -> dict:
         for k in [0] + [k for k, _, _ in log.impacts]:
             mask[k:k + n_w] = True
         share[str(cycle)] = float(U[mask].sum() / U.sum()) if U.sum() > 0 else float("nan")
+        if cycle == cycles:  # the last cycle's summed |feedback| [N m] in 25 bins of time
+            profile[:] = [float(b.mean()) for b in np.array_split(U, 25)]
 
     res = run_seed(exp, seed, cycles, on_cycle=on_cycle)
     fb = [r["fb_abs_mean_error"] for r in res.rows]
@@ -72,7 +75,7 @@ def one(job: tuple[str, str, int, int]) -> dict:
             "fb_first": fb[0] if fb else float("nan"), "fb_last": fb[-1] if fb else float("nan"),
             "ratio": fb[-1] / fb[0] if fb else float("nan"),
             "impact_share_first": share.get("1"), "impact_share_last": share.get(str(cycles)),
-            "fb": fb}
+            "profile": profile, "fb": fb}
 
 
 def table(rows: list[dict]) -> str:
@@ -98,6 +101,9 @@ def summary(rows: list[dict]) -> str:
                      f"torso RMS <= {max(r['torso_rms'] or np.nan for r in rs):.2g} rad, "
                      f"last/first {min(ratios):.3f}-{max(ratios):.3f}, all three criteria "
                      f"{sum(ok)}/{len(rs)}")
+        lines.append(f"  seed {rs[0]['seed']}'s last cycle, summed |feedback| [N m] in 25 bins of "
+                     "time (touchdowns at its start and middle): "
+                     + " ".join(f"{b:.2g}" for b in rs[0]["profile"]))
     return "\n".join(lines)
 
 

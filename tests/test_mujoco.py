@@ -199,3 +199,8 @@ def test_mujoco_rollout_feeds_the_viewer(tmp_path):
                   str(tmp_path / "r"), "--html", "--no-progress")
     assert res.returncode == 0, res.stderr
     assert (tmp_path / "r" / "rollout.html").stat().st_size > 1000
+
+
+def test_mujoco_walker_refuses_the_poincare_map():
+    with pytest.raises(ConfigError, match="walking.poincare: the Poincare map is not computed"):
+        load_experiment(CONFIGS / "gaits" / "five_link_walker.yaml", ["plant={simulator: mujoco}"])

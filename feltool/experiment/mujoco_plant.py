@@ -42,6 +42,10 @@ def mujoco_problems(cfg: ExperimentConfig) -> list[tuple[str, str]]:
     if cfg.walking is not None and not cfg.walking.physical:
         out.append(("plant.simulator", "mujoco runs fixed-base robots and physical walkers "
                                        "(walking.feet), not a pinned walker"))
+    if cfg.walking is not None and cfg.walking.physical and cfg.walking.poincare:
+        out.append(("walking.poincare", "the Poincare map is not computed on MuJoCo's plant (its "
+                                        "finite differences would restart MuJoCo's soft "
+                                        "contacts at every perturbed state): set it false"))
     if cfg.actuation is not None:
         out.append(("actuation", "not supported with plant.simulator: mujoco"))
     return out
