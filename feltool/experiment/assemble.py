@@ -22,18 +22,18 @@ from feltool.errors import ConfigError, RobotError
 from feltool.experiment.checks import target_problems
 from feltool.experiment.demos import demo_trajectory, positions_series
 from feltool.experiment.experiment import Experiment
-from feltool.learning.fel import FEL_UPDATES, FeedbackErrorLearner
-from feltool.learning.model import ModelLearner, PhaseBasisFeatures, RegressorFeatures
-from feltool.learning.rates import basis_gain, per_sample_rates, samples_per_cycle
-from feltool.learning.sensitivity import CasadiJacobian
-from feltool.motion.motion import motion_problems, refuse_varying_phase
-from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive
 from feltool.experiment.mujoco_plant import (
     mujoco_arm_loop,
     mujoco_problems,
     mujoco_walker_loop,
     uses_mujoco,
 )
+from feltool.learning.fel import FEL_UPDATES, FeedbackErrorLearner
+from feltool.learning.model import ModelLearner, PhaseBasisFeatures, RegressorFeatures
+from feltool.learning.rates import basis_gain, per_sample_rates, samples_per_cycle
+from feltool.learning.sensitivity import CasadiJacobian
+from feltool.motion.motion import motion_problems, refuse_varying_phase
+from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive
 from feltool.plant.disturbances import problems as disturbance_problems
 from feltool.plant.events import check_events
 from feltool.plant.rigid import make_plant, plant_problems, plant_robot
