@@ -13,7 +13,18 @@ from feltool.runs.seed import run_seed
 
 from .conftest import CONFIGS, feltool
 
-SHIPPED = sorted(CONFIGS.glob("*.yaml")) + sorted((CONFIGS / "gaits").glob("*.yaml"))
+ALL_SHIPPED = sorted(CONFIGS.glob("*.yaml")) + sorted((CONFIGS / "gaits").glob("*.yaml"))
+#: configs whose plant is MuJoCo run on the Python engine by design (tests/test_mujoco.py)
+MUJOCO = [p for p in ALL_SHIPPED if "simulator: mujoco" in p.read_text()]
+SHIPPED = [p for p in ALL_SHIPPED if p not in MUJOCO]
+
+
+def test_shipped_mujoco_configs_run_on_the_python_engine_with_the_reason():
+    assert len(MUJOCO) == 2
+    for path in MUJOCO:
+        exp = load_experiment(path)
+        assert exp.engine == "python", path.stem
+        assert exp.engine_reason == "backend auto: plant.simulator: mujoco runs on the Python engine"
 
 
 @pytest.fixture(autouse=True)

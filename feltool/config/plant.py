@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import (
     Field,
     field_validator,
@@ -94,3 +96,16 @@ class PlantConfig(Strict):
     payloads: list[Payload] = Field(default_factory=list, description="Payloads fixed to frames.")
     friction: dict[str, JointFriction] = Field(default_factory=dict, description="Friction per "
                                                "joint, by joint name.")
+    simulator: Literal["pinocchio", "mujoco"] = Field("pinocchio", description="What simulates "
+        "the plant: `pinocchio` (the rigid model, changed by this block) or `mujoco` (the same "
+        "URDF compiled by MuJoCo with its soft contacts, the `mujoco` package: pip install "
+        "'feltool[mujoco]'; the Python engine; docs/biped.md, \"MuJoCo as the plant\").")
+
+    @model_validator(mode="after")
+    def _mujoco_alone(self) -> PlantConfig:
+        if self.simulator == "mujoco":
+            given = [k for k in ("robot", "bodies", "payloads", "friction") if getattr(self, k)]
+            if given:
+                raise ValueError(f"simulator: mujoco simulates the model's URDF as it is; "
+                                 f"remove {', '.join(given)}")
+        return self

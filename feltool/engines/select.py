@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from feltool.engines.compiled.library import c_compiler
 from feltool.engines.compiled.support import check_supported, unsupported
+from feltool.errors import ConfigError
 from feltool.experiment.experiment import Experiment
 
 
@@ -18,6 +19,15 @@ def choose_engine(exp: Experiment) -> Experiment:
     :class:`~feltool.errors.ConfigError` when ``backend: compiled`` asks for a feature the
     compiled engine lacks."""
     backend = exp.config.backend
+    plant = exp.config.plant
+    if plant is not None and plant.simulator == "mujoco":
+        if backend == "compiled":
+            raise ConfigError([("plant.simulator", "backend 'compiled': MuJoCo steps the plant "
+                                "in the Python engine only; use backend auto or pinocchio")],
+                              str(exp.source) if exp.source else None)
+        exp.engine, exp.engine_reason = "python", (
+            f"backend {backend}: plant.simulator: mujoco runs on the Python engine")
+        return exp
     if backend == "compiled":
         check_supported(exp)
         choice = ("compiled", "backend: compiled")

@@ -22,6 +22,12 @@ from feltool.errors import ConfigError, RobotError
 from feltool.experiment.checks import target_problems
 from feltool.experiment.demos import demo_trajectory, positions_series
 from feltool.experiment.experiment import Experiment
+from feltool.experiment.mujoco_plant import (
+    mujoco_arm_loop,
+    mujoco_problems,
+    mujoco_walker_loop,
+    uses_mujoco,
+)
 from feltool.learning.fel import FEL_UPDATES, FeedbackErrorLearner
 from feltool.learning.model import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.learning.rates import basis_gain, per_sample_rates, samples_per_cycle
@@ -70,6 +76,7 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
         problems += _name_problems(raw, named or robot)
         if cfg is not None and cfg.plant is not None:
             problems += plant_problems(cfg.plant, robot, source.parent if source else None)
+            problems += mujoco_problems(cfg)
     if problems:
         # The same path may be reported by the schema and by the name checks; keep both texts.
         raise ConfigError(_dedupe(problems), src)
@@ -298,8 +305,8 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
                                    np.array(rates), L.update, L.damping, L.sensitivity,
                                    L.fd_epsilon)
     _check_phase(cfg, joints, robot, {joints[i] for i in (*fixed, *referenced)}, src)
-    plant = dynamics
-    if cfg.plant is not None:
+    plant = dynamics  # (with a MuJoCo plant: the known model predicts, MuJoCo simulates)
+    if cfg.plant is not None and not uses_mujoco(cfg):
         if any(ev.changes_world for ev in cfg.events):
             raise ConfigError([("events", "events change the known model's world; combining "
                                           "them with a plant block is not supported yet")], src)
@@ -320,6 +327,8 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
                         cfg.sim.joint_limits, cfg.sim.torque_limits)
     loop = ClosedLoop(plant, law, actuated, dt, cfg.sim.substeps, cfg.sim.integrator,
                       error_mask, limits)
+    if uses_mujoco(cfg) and wm is None:
+        loop = mujoco_arm_loop(cfg, robot, loop, src)
     check_events(robot.model, cfg.events, src)
     hybrid = None
     if L.impact_window_s > 0 and cfg.walking is None:
@@ -340,10 +349,12 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
                 raise ConfigError([("actuation", "a physical walker's motors are its URDF "
                                                  "joints (every joint but the base's); remove "
                                                  "the actuation block")], src)
-            if cfg.plant is not None:
+            if cfg.plant is not None and not uses_mujoco(cfg):
                 raise ConfigError([("plant", "not supported for a physical walker yet")], src)
             hybrid = physical_loop(cfg, wm, law, dynamics, joints, error_mask, src)
             hybrid.reference = dict(referenced)
+            if uses_mujoco(cfg):
+                hybrid = mujoco_walker_loop(cfg, hybrid, src)
         else:
             hybrid = HybridLoop(plant, law, pinned_allocation(cfg, robot, joints, src),
                                 pinned_walker(cfg, robot, joints, src), actuated, dt,

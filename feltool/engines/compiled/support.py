@@ -13,6 +13,8 @@ def unsupported(exp) -> list[tuple[str, str]]:
 
     cfg, L = exp.config, exp.config.learning
     out = []
+    if cfg.plant is not None and cfg.plant.simulator == "mujoco":
+        out.append(("plant.simulator", "MuJoCo steps the plant in the Python engine only"))
     if L.sensitivity == "finite_difference":
         out.append(("learning.sensitivity", "finite_difference is the Python engine's check of "
                                             "the exact sensitivity (the compiled engine "
