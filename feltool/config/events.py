@@ -16,7 +16,7 @@ from feltool.bounds import (
     MAX_MASS,
     MAX_PERIOD_S,
 )
-from feltool.config.base import Angle, NonNegFloat, PositiveFloat, Strict
+from feltool.config.base import Angle, Length, NonNegFloat, PositiveFloat, Strict
 
 
 class EventConfig(Strict):
@@ -36,6 +36,8 @@ class EventConfig(Strict):
     mass: NonNegFloat | None = Field(None, le=MAX_MASS, description="Mass in [kg] (payload, "
                                      f"mass); at most {MAX_MASS:g}.")
     frame: str | None = Field(None, description="URDF link/frame carrying the payload.")
+    com: list[Length] | None = Field(None, min_length=3, max_length=3, description="Payload: "
+        "where its point mass sits in `frame`, [x, y, z] in [m]; default the frame's origin.")
     link: str | None = Field(None, description="URDF link whose mass is set (kind mass).")
     period_s: PositiveFloat | None = Field(None, le=MAX_PERIOD_S, description="The motion's "
         "new period in [s]: the phase's frequency moves to 2 pi / period_s smoothly (C1 in "
@@ -59,6 +61,8 @@ class EventConfig(Strict):
                 raise ValueError("an event changes the world (kind: slope, payload or mass) or "
                                  "the motion (period_s, amplitude, goal); give one")
             return self
+        if self.com is not None and self.kind != "payload":
+            raise ValueError("'com' is the position of a payload; give it with kind payload")
         if motion:
             raise ValueError(f"'{', '.join(motion)}' change the motion; give them in an event "
                              f"of their own, without kind '{self.kind}'")

@@ -94,3 +94,6 @@ class PlantConfig(Strict):
     payloads: list[Payload] = Field(default_factory=list, description="Payloads fixed to frames.")
     friction: dict[str, JointFriction] = Field(default_factory=dict, description="Friction per "
                                                "joint, by joint name.")
+    motor_gain: dict[str, PositiveFloat] = Field(default_factory=dict, description="Motor gain "
+        "error per actuated joint, by joint name: the plant's motor applies this factor times "
+        "the commanded torque [-] (default 1: exact motors).")

@@ -72,6 +72,8 @@ def hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics,
     """One cycle of the hybrid loop (walkers, allocated motors), then one update (eq. 3.6);
     the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d. ``loop``: the
     loop to run (default ``exp.hybrid``; a disturbed or ILC copy); ``learn`` False: no update."""
+    if plant is exp.dynamics and exp.plant is not None:  # the seed's world: the experiment's plant
+        plant = exp.plant
     P, Pv, Pa = exp.primitives.desired(theta)
     log = (loop or exp.hybrid).run_cycle(plant, q, v, P, Pv, Pa)
     theta_next = theta

@@ -300,9 +300,10 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
     _check_phase(cfg, joints, robot, {joints[i] for i in (*fixed, *referenced)}, src)
     plant = dynamics
     if cfg.plant is not None:
-        if any(ev.changes_world for ev in cfg.events):
-            raise ConfigError([("events", "events change the known model's world; combining "
-                                          "them with a plant block is not supported yet")], src)
+        if wm is not None and cfg.plant.robot is not None:
+            raise ConfigError([("plant.robot", "a physical walker's plant is its own robot "
+                                               "changed by the plant block (bodies, payloads, "
+                                               "friction, motor_gain); remove plant.robot")], src)
         plant_rb = reduce_robot(plant_robot(cfg.plant, full_robot,
                                             source.parent if source else None), locked)
         plant_rb.set_gravity(cfg.gravity)
@@ -340,8 +341,6 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
                 raise ConfigError([("actuation", "a physical walker's motors are its URDF "
                                                  "joints (every joint but the base's); remove "
                                                  "the actuation block")], src)
-            if cfg.plant is not None:
-                raise ConfigError([("plant", "not supported for a physical walker yet")], src)
             hybrid = physical_loop(cfg, wm, law, dynamics, joints, error_mask, src)
             hybrid.reference = dict(referenced)
         else:

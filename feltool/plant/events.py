@@ -44,7 +44,8 @@ def changed_model(model: pin.Model, events: list[EventConfig]) -> pin.Model:
             plant.gravity = pin.Motion(Ry @ plant.gravity.linear, np.zeros(3))
         elif ev.kind == "payload":
             frame = plant.frames[plant.getFrameId(ev.frame)]
-            point = pin.Inertia(ev.mass, np.zeros(3), np.zeros((3, 3)))
+            at = np.zeros(3) if ev.com is None else np.array(ev.com, dtype=float)
+            point = pin.Inertia(ev.mass, at, np.zeros((3, 3)))
             plant.inertias[frame.parentJoint] = (plant.inertias[frame.parentJoint]
                                                  + frame.placement.act(point))
         elif ev.kind == "mass":
@@ -60,13 +61,22 @@ def changed_model(model: pin.Model, events: list[EventConfig]) -> pin.Model:
     return plant
 
 
-def plant_for_cycle(model: pin.Model, events: list[EventConfig], cycle: int,
+def world_plant(base: Dynamics, events: list[EventConfig], backend: str = "pinocchio"
+                ) -> Dynamics:
+    """``base`` (the experiment's plant: the known model or a ``plant:`` block's) with the world
+    ``events`` applied to its rigid model; its joint friction and motor gains are kept."""
+    rigid = getattr(base, "rigid", base)
+    changed = make_dynamics(changed_model(rigid.model, events), backend)
+    return changed if rigid is base else base.with_rigid(changed)
+
+
+def plant_for_cycle(base: Dynamics, events: list[EventConfig], cycle: int,
                     backend: str = "pinocchio") -> Dynamics | None:
     """The plant to simulate from ``cycle`` on if an event changes the world at ``cycle``, else
-    None."""
+    None; ``base`` is the experiment's plant before any event."""
     if not any(ev.cycle == cycle and ev.changes_world for ev in events):
         return None
-    return make_dynamics(changed_model(model, [ev for ev in events if ev.cycle <= cycle]), backend)
+    return world_plant(base, [ev for ev in events if ev.cycle <= cycle], backend)
 
 
-__all__ = ["changed_model", "check_events", "plant_for_cycle"]
+__all__ = ["changed_model", "check_events", "plant_for_cycle", "world_plant"]

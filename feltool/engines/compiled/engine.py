@@ -38,7 +38,7 @@ from feltool.engines.compiled.library import (
 from feltool.engines.compiled.support import check_supported
 from feltool.engines.outcome import CycleOutcome
 from feltool.engines.python import hybrid_cycle, limit_cycle_states
-from feltool.plant.events import changed_model
+from feltool.plant.events import world_plant
 
 if TYPE_CHECKING:
     from feltool.experiment.experiment import Experiment
@@ -52,7 +52,7 @@ def _fingerprint(plant) -> bytes:
     m = rigid.model
     parts = [np.asarray(m.gravity.linear, float)]
     parts += [m.inertias[j].toDynamicParameters() for j in range(1, m.njoints)]
-    for key in ("viscous", "coulomb", "coulomb_velocity"):
+    for key in ("viscous", "coulomb", "coulomb_velocity", "motor_gain"):
         if hasattr(plant, key):
             parts.append(np.asarray(getattr(plant, key), float))
     return np.concatenate(parts).tobytes()
@@ -75,15 +75,12 @@ def _cache_key(exp: Experiment, plants: list) -> str:
 
 
 def worlds(exp: Experiment) -> list:
-    """The plants a run meets: ``exp.plant``, then the known model changed by the world events
+    """The plants a run meets: ``exp.plant``, then that plant changed by the world events
     up to each event's cycle (the Python engine's :func:`feltool.plant.events.plant_for_cycle`)."""
-    from feltool.dynamics.interface import make_dynamics
-
     out = [exp.plant if exp.plant is not None else exp.dynamics]
     events = exp.config.events
     for c in sorted({ev.cycle for ev in events if ev.changes_world}):
-        out.append(make_dynamics(changed_model(exp.robot.model,
-                                               [ev for ev in events if ev.cycle <= c])))
+        out.append(world_plant(out[0], [ev for ev in events if ev.cycle <= c]))
     return out
 
 
