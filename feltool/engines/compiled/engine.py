@@ -123,13 +123,15 @@ class CompiledEngine:
     def _build(self, exp: Experiment, plants: list) -> list:
         """The cycle graphs of every world (CasADi functions, not compiled)."""
         fns = []
+        if self.physical:  # one build for every world: the plant's parameters are inputs
+            from feltool.engines.compiled.physical import physical_cycle_function as build
+
+            plants = plants[:1]
+            fns += [build(exp, None, False, "cycle_0"), build(exp, None, True, "trace_0")]
         for w, plant in enumerate(plants):
             if self.physical:
-                from feltool.engines.compiled.physical import physical_cycle_function as build
-
-                fns += [build(exp, plant, False, f"cycle_{w}"),
-                        build(exp, plant, True, f"trace_{w}")]
-            elif self.walker:
+                continue
+            if self.walker:
                 from feltool.engines.compiled.pinned import walker_cycle_function as build
 
                 fns += [build(exp, plant, False, f"cycle_{w}"),
@@ -206,14 +208,32 @@ class CompiledEngine:
         extra = [] if theta_m is None else [theta_m]
         return np.concatenate([theta[self.exp.learner.learned], *extra, q, v])
 
-    # -- calls ------------------------------------------------------------------------------------
-    def cycle(self, world: int, state: np.ndarray, data: np.ndarray):
-        """``(state', stats)`` of one cycle."""
-        return self._calls[self._n_fns * world](state, data, self.params)
+    def world_params(self, plant) -> np.ndarray:
+        """A physical walker's ``params`` input in the world ``plant``: the experiment's
+        parameters, then the plant's world vector (the known model stands for the experiment's
+        plant, as in :func:`feltool.runs.seed.run_seed`)."""
+        from feltool.engines.compiled.physical_step import world_vector
 
-    def trace(self, world: int, state: np.ndarray, data: np.ndarray):
+        if plant is self.exp.dynamics and self.exp.plant is not None:
+            plant = self.exp.plant
+        key = getattr(self, "_world_key", None)
+        if key is None or key[0] is not plant:
+            self._world_key = (plant, np.concatenate([self.params, world_vector(plant)]))
+        return self._world_key[1]
+
+    # -- calls ------------------------------------------------------------------------------------
+    def cycle(self, world: int, state: np.ndarray, data: np.ndarray,
+              params: np.ndarray | None = None):
+        """``(state', stats)`` of one cycle (``params``: instead of the experiment's, e.g.
+        :meth:`world_params`)."""
+        return self._calls[self._n_fns * world](state, data,
+                                                self.params if params is None else params)
+
+    def trace(self, world: int, state: np.ndarray, data: np.ndarray,
+              params: np.ndarray | None = None):
         """``(state', stats, X, U, Urows, Uerr, Qd)`` of one cycle."""
-        return self._calls[self._n_fns * world + 1](state, data, self.params)
+        return self._calls[self._n_fns * world + 1](state, data,
+                                                    self.params if params is None else params)
 
     def many(self, world: int, state: np.ndarray, data: np.ndarray):
         """``(states, stats)`` of the next :data:`CYCLES_PER_CALL` cycles, one column each."""
@@ -407,7 +427,8 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
     def run(theta, q, v, plant, theta_m=None) -> CycleOutcome:
         data = engine.data(theta)
         state0 = engine.state(theta, q, v)
-        state, stats = engine.cycle(0, state0, data)
+        params = engine.world_params(plant)
+        state, stats = engine.cycle(0, state0, data, params)
         if stats[k] != 0:  # stopped: the Python engine's outcome of this very cycle
             return hybrid_cycle(exp, theta, q, v, plant)
         m = int(round(stats[k + 1]))
@@ -423,7 +444,7 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         contact["not_walking"] = None
 
         def trace():
-            rows = engine.trace(0, state0, data)[2]
+            rows = engine.trace(0, state0, data, params)[2]
             rw = {n: x[:, :m].T for n, x in unpack(rows, row_fields(nv)).items()}
             return CycleLog(rw["q"], rw["v"], rw["U"], x_end[:nv], x_end[nv:], rw["Urows"],
                             rw["Uerr"]), rw["qd"]
