@@ -26,6 +26,7 @@ from feltool.learning.fel import FEL_UPDATES, FeedbackErrorLearner
 from feltool.learning.model import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.learning.rates import basis_gain, per_sample_rates, samples_per_cycle
 from feltool.learning.sensitivity import CasadiJacobian
+from feltool.learning.walker_model import WalkerModelLearner
 from feltool.motion.motion import motion_problems, refuse_varying_phase
 from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive
 from feltool.plant.disturbances import problems as disturbance_problems
@@ -309,7 +310,8 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
         plant_rb.set_gravity(cfg.gravity)
         plant = make_plant(cfg.plant, plant_rb, joints, make_dynamics(
             plant_rb.model, "casadi" if cfg.backend == "casadi" else "pinocchio"))
-    model_learner = _model_learner(cfg, robot, joints, actuated, source)
+    model_learner = None if wm is not None else _model_learner(cfg, robot, joints, actuated,
+                                                               source)
     limits = None
     if dynamics.euclidean and (cfg.sim.joint_limits, cfg.sim.torque_limits) != ("ignore",) * 2:
         m = robot.model
@@ -333,9 +335,9 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
         if L.sensitivity != "exact":
             raise ConfigError([("learning.sensitivity", "walking/actuation support only "
                                                         "'exact'")], src)
-        if model_learner is not None:
-            raise ConfigError([("learning.model", "model learning is not supported for "
-                                                  "walking/actuated robots yet")], src)
+        if L.model is not None and wm is None:
+            raise ConfigError([("learning.model", "model learning on a walker needs a "
+                                                  "physical walker (walking.feet)")], src)
         if wm is not None:
             if cfg.actuation is not None:
                 raise ConfigError([("actuation", "a physical walker's motors are its URDF "
@@ -343,6 +345,9 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
                                                  "the actuation block")], src)
             hybrid = physical_loop(cfg, wm, law, dynamics, joints, error_mask, src)
             hybrid.reference = dict(referenced)
+            if L.model is not None:
+                model_learner = _walker_model_learner(cfg, robot, hybrid.walker.motor_names,
+                                                      src)
         else:
             hybrid = HybridLoop(plant, law, pinned_allocation(cfg, robot, joints, src),
                                 pinned_walker(cfg, robot, joints, src), actuated, dt,
@@ -401,6 +406,10 @@ def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actua
     if M is None:
         return None
     problems = []
+    if M.features == "none" or M.motor_bias > 0:
+        problems.append(("learning.model.features" if M.features == "none" else
+                         "learning.model.motor_bias", "only for a physical walker "
+                                                      "(walking.feet)"))
     if cfg.learning.step == "per_step":
         problems.append(("learning.model", "needs learning.step: per_cycle (the trajectory "
                                            "learner's per_step loop has no model correction)"))
@@ -435,6 +444,29 @@ def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actua
     rate = M.rate if M.update == "gauss_newton" else \
         M.rate / (samples_per_cycle(cfg.period_s, cfg.sim.rate_hz) * kappa)
     return ModelLearner(features, mask * actuated, rate, M.update, M.step, M.damping)
+
+
+def _walker_model_learner(cfg: ExperimentConfig, robot: Robot, motors: list[str],
+                          src: str | None) -> WalkerModelLearner:
+    """A physical walker's classic FEL (``learning.model``): the regressor's model correction
+    and/or the motor biases (:mod:`feltool.learning.walker_model`)."""
+    M = cfg.learning.model
+    problems = []
+    if M.features == "phase_basis":
+        problems.append(("learning.model.features", "a physical walker learns 'regressor' "
+                                                    "(a model correction) or 'none' (with "
+                                                    "motor_bias)"))
+    if M.update != "gauss_newton" or M.step != "per_cycle":
+        problems.append(("learning.model.update", "a physical walker's model learning is a "
+                                                  "Levenberg-Marquardt step per cycle: "
+                                                  "update gauss_newton, step per_cycle"))
+    if M.features == "none" and M.motor_bias == 0:
+        problems.append(("learning.model.motor_bias", "with features none, give motor_bias "
+                                                      "> 0 (else nothing is learned)"))
+    if problems:
+        raise ConfigError(problems, src)
+    model = robot.model if M.features == "regressor" else None
+    return WalkerModelLearner(model, motors, M.rate, M.motor_bias, M.damping)
 
 
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:

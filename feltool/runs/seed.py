@@ -169,7 +169,8 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
                 exp.config.learning.update not in FEL_UPDATES
                 or exp.config.disturbances is not None):
             return walker_cycle_runner(exp, theta0, seed)  # ILC, baseline, disturbances
-        return lambda theta, q, v, plant, theta_m=None: hybrid_cycle(exp, theta, q, v, plant)
+        return lambda theta, q, v, plant, theta_m=None: hybrid_cycle(exp, theta, q, v, plant,
+                                                                      theta_m=theta_m)
     loops: dict[int, ClosedLoop] = {}
 
     def loop_for(plant: Dynamics) -> ClosedLoop:

@@ -99,6 +99,12 @@ class PhysicalLoop:
         #: ``(n, k)`` motor torques [N m] added to the command at each control step's RMP
         #: sample (``WalkLog.phase_index``): ILC's learned feedforward, or None
         self.motor_feedforward: np.ndarray | None = None
+        # -- hooks of classic FEL on the walker (feltool.learning.walker_model) --
+        #: ``(qd, vd, ad) -> (nv,)`` generalized forces [N m] added to the known model's
+        #: feedforward (a learned model correction), or None
+        self.model_correction = None
+        #: ``(k,)`` motor torques [N m] added to every command (learned biases), or None
+        self.motor_bias: np.ndarray | None = None
         #: Plant-only disturbances (:class:`feltool.plant.disturbances.WalkerDisturbance`), or None:
         #: the controller and the learner see its measurements, the plant gets its torques
         self.disturbance = None
@@ -246,7 +252,13 @@ class PhysicalLoop:
         r, rd = self.law.references(qr[None], vr[None])
         terms = self.law.terms(q, v, r[0], rd[0], self.error_rows)
         A = W.allocation_matrix(q)
-        return (qd, vd, ad, ar), r[0], terms, A, A @ (self.known.inverse(qd, vd, ad) + terms[0])
+        tau_w = self.known.inverse(qd, vd, ad) + terms[0]
+        if self.model_correction is not None:
+            tau_w = tau_w + self.model_correction(qd, vd, ad)
+        u = A @ tau_w
+        if self.motor_bias is not None:
+            u = u + self.motor_bias
+        return (qd, vd, ad, ar), r[0], terms, A, u
 
     def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int, ref=None,
                     phase_acc: float = 0.0):

@@ -424,17 +424,19 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
     nv, PL, spc = engine.lay.nv, engine.lay.n_learned, exp.hybrid.walker.steps_per_cycle
     k = 4 * nv + len(SCALARS)
 
+    Pm = engine.lay.n_model
+
     def run(theta, q, v, plant, theta_m=None) -> CycleOutcome:
         data = engine.data(theta)
-        state0 = engine.state(theta, q, v)
+        state0 = engine.state(theta, q, v, theta_m if Pm else None)
         params = engine.world_params(plant)
         state, stats = engine.cycle(0, state0, data, params)
         if stats[k] != 0:  # stopped: the Python engine's outcome of this very cycle
-            return hybrid_cycle(exp, theta, q, v, plant)
+            return hybrid_cycle(exp, theta, q, v, plant, theta_m=theta_m)
         m = int(round(stats[k + 1]))
         theta_next = theta.copy()
         theta_next[exp.learner.learned] = state[:PL]
-        x_end = state[PL:]
+        x_end = state[PL + Pm:]
         s = 2 * nv  # the scalars of SCALARS, then the limit hits (joints, motors' torques)
         max_error, max_speed, fb_stab, fb_err, finite = stats[s:s + len(SCALARS)].tolist()
         hits = stats[s + len(SCALARS):k].round().astype(int)
@@ -452,6 +454,7 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         out = CycleOutcome(theta_next, x_end[:nv], x_end[nv:], stats[:nv], stats[nv:2 * nv],
                            max_error, max_speed, finite == 1.0 and np.isfinite(state).all(),
                            trace, fb_stab, fb_err,
+                           theta_m_next=state[PL:PL + Pm].copy() if Pm else theta_m,
                            limit_hits=(hits[:nv], hits[nv:]))
         out.impacts = [(int(round(s)), True, float(length)) for s, length in zip(at, lengths)]
         out.contact = contact

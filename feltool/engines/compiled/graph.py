@@ -89,7 +89,8 @@ class Layout:
 def layout(exp) -> Layout:
     model = exp.model_learner
     basis = 0
-    if model is not None and not hasattr(model.features, "corrected_model"):
+    if model is not None and not getattr(model, "walker", False) and \
+            not hasattr(model.features, "corrected_model"):
         basis = model.n_params // exp.robot.model.nv  # phase-basis features
     return Layout(exp.robot.model.nv, max_steps(exp),
                   tuple((i, len(cols)) for i, cols in exp.learner._blocks),

@@ -81,6 +81,9 @@ class PhysicalGraph:
         PL = self.lay.n_learned
         self.gauss_newton = exp.learner.update == "gauss_newton"
         self.sizes.update(grad=PL, hess=PL * PL if self.gauss_newton else 0)
+        # the model correction's and motor biases' sums (feltool.learning.walker_model)
+        self.n_model = Pm = self.ctl.n_model()
+        self.sizes.update(grad_m=Pm, hess_m=Pm * Pm)
         self.n_state = sum(self.sizes.values())
         self.row_size = sum(sz for _, sz in row_fields(self.nv))
 
@@ -94,11 +97,12 @@ class PhysicalGraph:
         kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
         srows = ca.MX.sym("srows", self.srows_size())
         w = ca.MX.sym("w", self.kin.n_world)
+        theta_m = ca.MX.sym("theta_m", self.n_model)
         st = unpack(S, self.sizes.items())
         running = ca.logic_and(st["stop"] == 0, st["done"] == 0)
         (tau, u, over, qd, vd, ad, r, U, Urows, Uerr, A, inert, phase_acc_next, jj, label,
          err, a1, F) = self.ctl.function()(st["q"], st["v"], st["phase_acc"], st["n_imp"], consts,
-                                    kp, kd, targets, w)
+                                    kp, kd, targets, w, theta_m)
         hits = st["hits"] + over
         stop = st["stop"]
         if W.checks.torques == "report":
@@ -141,12 +145,13 @@ class PhysicalGraph:
                                            st["max_imp_ratio"]),
                "energy": st["energy"] + impact * lost, "length": st["length"] + impact * length,
                "hits": hits}
-        new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, Uerr + inert
-                                                  if self.inverse_dynamics else Uerr, jj, srows)
+        E = Uerr + inert if self.inverse_dynamics else Uerr
+        new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, E, jj, srows)
+        new["grad_m"], new["hess_m"] = self._model_sums(st, qd, vd, ad, A, E)
         S_new = ca.vertcat(*[new[name] for name in self.sizes])
         row = ca.vertcat(1, st["q"], st["v"], qd, r, U, Urows, Uerr, err, work, impact,
                          impact * length, tau)  # (row_fields)
-        args = [S, consts, kp, kd, targets, srows, w]
+        args = [S, consts, kp, kd, targets, srows, w, theta_m]
         body = ca.Function("phys_body", args, [S_new, row])
         idle = ca.Function("phys_idle", args, [S, ca.DM.zeros(self.row_size)])
         switch = ca.Function.conditional("phys_switch", [idle], body)  # 0: idle, else: run
@@ -188,6 +193,24 @@ class PhysicalGraph:
             for l2 in range(L)] for l1 in range(L)]
         return grad, st["hess"] + ca.vec(ca.blockcat(blocks_h))
 
+    def _model_sums(self, st, qd, vd, ad, A, E):
+        """The step's terms of the model learner's sums (:mod:`feltool.learning.walker_model`)
+        added to the state's: with :math:`\Phi = [A Y, I]` and :math:`e_m = A e`,
+        ``grad_m += Phi^T e_m``, ``hess_m += Phi^T Phi``."""
+        if not self.n_model:
+            return st["grad_m"], st["hess_m"]
+        kin, k = self.kin, self.k
+        Am = ca.reshape(A, k, self.nv)
+        cols = []
+        if kin.n_pi:
+            cols.append(ca.mtimes(Am, kin.regressor(qd, vd, ad)))
+        if self.n_model > kin.n_pi:
+            cols.append(ca.DM.eye(k))
+        Phi = ca.horzcat(*cols)
+        em = ca.mtimes(Am, E)
+        return (st["grad_m"] + ca.mtimes(Phi.T, em),
+                st["hess_m"] + ca.vec(ca.mtimes(Phi.T, Phi)))
+
     def _touchdown_switch(self, td: ca.Function) -> ca.Function:
         """``(land, q, v, tau, h, anchor, checks, q1, v1, checks1) -> branch``: the
         touchdown's state, checks, impulse ratio, energy lost and step length when ``land``,
@@ -215,7 +238,8 @@ class PhysicalGraph:
         kp, kd, targets = (ca.MX.sym(s, self.nv) for s in ("kp", "kd", "targets"))
         srows = ca.MX.sym("srows", self.srows_size())
         w = ca.MX.sym("w", self.kin.n_world)
-        args = [consts, kp, kd, targets, srows, w]
+        theta_m = ca.MX.sym("theta_m", self.n_model)
+        args = [consts, kp, kd, targets, srows, w, theta_m]
         s, rows = S, []
         for _ in range(BLOCK):
             s, row = one(s, *args)
@@ -252,7 +276,8 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     state = ca.MX.sym("state", lay.n_state)
     data = ca.MX.sym("data", lay.n_data + 3 * n * len(refs))
     params = ca.MX.sym("params", lay.n_params + kin.n_world)  # the world vector last
-    theta, x0 = state[:PL], state[PL:]
+    Pm = g.n_model
+    theta, theta_m, x0 = state[:PL], state[PL:PL + Pm], state[PL + Pm:]
     kp, kd, targets, rates, damping = split_params(lay, params[:lay.n_params])[:5]
     world = params[lay.n_params:]
     sens, (P, Pv, Pa), _, _ = desired_from_data(lay, theta, data)
@@ -280,7 +305,8 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
                     ca.DM.zeros(g.sizes["hess"]))
     srows = ca.vertcat(*[ca.vec(sens[l][c].T) for l in range(L) for c in range(3)]) if L \
         else ca.MX.zeros(0)
-    S, rows = g.steps_function()(S0, consts, kp, kd, targets, srows, world)
+    S0 = ca.vertcat(S0, ca.DM.zeros(Pm + Pm * Pm))
+    S, rows = g.steps_function()(S0, consts, kp, kd, targets, srows, world, theta_m)
     st, rw = unpack(S, g.sizes.items()), unpack(rows, row_fields(nv))
     ended = st["n_imp"] >= spc
     stop = ca.if_else(ca.logic_and(st["stop"] == 0, 1 - ended), stop_code("touchdown"), st["stop"])
@@ -326,7 +352,16 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
                ca.if_else(n_steps > 0, st["length"] / n_steps, nan), st["length"], n_steps,
                m * stp.dt, ca.sum2(rw["work"]), stab_rms]
     stats += [stop, m, *steps_at, *lengths, *contact]
-    outs = [ca.vertcat(theta_next, st["q"], st["v"]), ca.vertcat(*stats)]
+    theta_m_next = theta_m
+    if Pm:  # the model correction's and biases' Levenberg-Marquardt step
+        H = ca.reshape(st["hess_m"], Pm, Pm)
+        lam = split_params(lay, params[:lay.n_params])[6] * ca.sum1(ca.diag(H)) / Pm + 1e-300
+        delta = ca.solve(H + lam * ca.DM.eye(Pm), st["grad_m"])
+        ml = exp.model_learner
+        rates = ca.vertcat(ca.repmat(split_params(lay, params[:lay.n_params])[5], ml.n_pi, 1),
+                           ca.DM.ones(ml.n_bias) * ml.bias_rate)
+        theta_m_next = ca.if_else(stop == 0, theta_m + rates * delta, theta_m)
+    outs = [ca.vertcat(theta_next, theta_m_next, st["q"], st["v"]), ca.vertcat(*stats)]
     names = ["state_next", "stats"]
     if full:
         outs.append(rows)

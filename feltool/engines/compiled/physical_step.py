@@ -13,6 +13,7 @@ from feltool.dynamics.symbolic import (
     symbolic_center_of_mass,
     symbolic_frame_kinematics,
     symbolic_rnea,
+    symbolic_rnea_parametric,
     symbolic_rnea_world,
 )
 from feltool.engines.compiled.graph import (
@@ -70,6 +71,14 @@ class Kin:
         M = ca.jacobian(rnea(q, v, a), a)
         self.M = ca.Function("M", [q], [ca.substitute(M, ca.vertcat(v, a),
                                                       ca.DM.zeros(2 * nv))])
+        # the model correction's regressor (learning.model): Y = d RNEA / d pi, its columns
+        learner = exp.model_learner
+        self.n_pi = learner.n_pi if getattr(learner, "walker", False) else 0
+        if self.n_pi:
+            pi_s = ca.SX.sym("pi", 10 * (model.njoints - 1))
+            Y = ca.jacobian(symbolic_rnea_parametric(model)(q, v, a, pi_s), pi_s)
+            Y = ca.substitute(Y, pi_s, ca.DM.zeros(pi_s.shape[0]))[:, list(learner.columns)]
+            self.regressor = ca.Function("regressor", [q, v, a], [ca.densify(Y)])
         # the plant: RNEA of the world's parameters
         self.n_world = world_size(model)
         w = ca.SX.sym("w", self.n_world)
@@ -330,6 +339,11 @@ class Control:
     def consts_size(self) -> int:
         return 6 * self.st.nv * self.st.n + 3 * self.st.n
 
+    def n_model(self) -> int:
+        """The physical walker's model correction and motor biases (``learning.model``)."""
+        learner = self.exp.model_learner
+        return learner.n_params if getattr(learner, "walker", False) else 0
+
     def function(self) -> ca.Function:
         exp, kin, stp = self.exp, self.kin, self.st
         W, law, loop = kin.W, exp.law, exp.hybrid
@@ -341,6 +355,7 @@ class Control:
         consts = ca.MX.sym("consts", self.consts_size())
         kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
         w = ca.MX.sym("w", kin.n_world)
+        theta_m = ca.MX.sym("theta_m", self.n_model())
         arrays = [ca.reshape(consts[c * nv * n:(c + 1) * nv * n], nv, n) for c in range(6)]
         P, Pv, Pa, R, Rv, Ra = arrays
         grid = [consts[6 * nv * n + c * n:6 * nv * n + (c + 1) * n] for c in range(3)]
@@ -372,7 +387,12 @@ class Control:
         u_fb, u_rows, u_err = feedback(CASADI, sym_law, q, v, r, rd, loop.error_rows)
         Mq = kin.M(q)
         A = kin.allocation(q, Mq)
-        u = ca.mtimes(A, kin.rnea(qd, vd, ad) + u_fb)
+        tau_w = kin.rnea(qd, vd, ad) + u_fb
+        if kin.n_pi:  # the learned model correction Y theta_pi (feltool.learning.walker_model)
+            tau_w = tau_w + ca.mtimes(kin.regressor(qd, vd, ad), theta_m[:kin.n_pi])
+        u = ca.mtimes(A, tau_w)
+        if self.n_model() > kin.n_pi:  # the learned motor biases
+            u = u + theta_m[kin.n_pi:]
         effort = ca.DM(np.where(np.isfinite(W.checks.effort), W.checks.effort, 1e300))
         over = ca.fabs(u) > effort
         if W.checks.torques == "saturate":
@@ -386,7 +406,8 @@ class Control:
         phase_acc_next = ca.if_else(x_rate > 1e-9, (xc_acc - xa_f * rate**2) / x_rate, 0.0)
         # the metric's largest error: forward (not reference) desired against the system
         err = controlled_error(law, symbolic_reference(law, qd, vd, targets)[0], q)
-        return ca.Function("control", [q, v, phase_acc, n_imp, consts, kp, kd, targets, w],
+        return ca.Function("control", [q, v, phase_acc, n_imp, consts, kp, kd, targets, w,
+                                       theta_m],
                            [tau, u, over, qd, vd, ad, r, u_fb, u_rows, u_err, ca.vec(A), inert,
                             phase_acc_next, jj, label, err, a_now, F_now])
 
