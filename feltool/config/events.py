@@ -14,6 +14,7 @@ from pydantic import (
 from feltool.bounds import (
     MAX_CYCLES,
     MAX_MASS,
+    MAX_MASS_SCALE,
     MAX_PERIOD_S,
 )
 from feltool.config.base import Angle, Length, NonNegFloat, PositiveFloat, Strict
@@ -38,7 +39,11 @@ class EventConfig(Strict):
     frame: str | None = Field(None, description="URDF link/frame carrying the payload.")
     com: list[Length] | None = Field(None, min_length=3, max_length=3, description="Payload: "
         "where its point mass sits in `frame`, [x, y, z] in [m]; default the frame's origin.")
-    link: str | None = Field(None, description="URDF link whose mass is set (kind mass).")
+    link: str | None = Field(None, description="URDF link whose mass is set (kind mass); "
+                             "with `scale` and no link: every body.")
+    scale: PositiveFloat | None = Field(None, le=MAX_MASS_SCALE, description="Kind mass: "
+        "instead of `mass`, multiply the body's (no `link`: every body's) mass and rotational "
+        "inertia by this factor [-] (the centres of mass stay).")
     period_s: PositiveFloat | None = Field(None, le=MAX_PERIOD_S, description="The motion's "
         "new period in [s]: the phase's frequency moves to 2 pi / period_s smoothly (C1 in "
         "time), so q_d and its velocity stay continuous; the RMPs, functions of the phase, "
@@ -67,6 +72,10 @@ class EventConfig(Strict):
             raise ValueError(f"'{', '.join(motion)}' change the motion; give them in an event "
                              f"of their own, without kind '{self.kind}'")
         need = {"slope": ["angle"], "payload": ["mass", "frame"], "mass": ["mass", "link"]}
+        if self.scale is not None:
+            if self.kind != "mass" or self.mass is not None:
+                raise ValueError("'scale' is a kind mass event's factor, instead of 'mass'")
+            need["mass"] = []
         missing = [f for f in need[self.kind] if getattr(self, f) is None]
         if missing:
             raise ValueError(f"a '{self.kind}' event needs " + ", ".join(missing))

@@ -35,6 +35,7 @@ from feltool.plant.rigid import make_plant, plant_problems, plant_robot
 from feltool.robot.frames import FrameAngle
 from feltool.robot.robot import Robot, load_robot, robot_spec, with_angle_coordinates
 from feltool.walking.build import physical_loop, pinned_allocation, pinned_walker, walker_model
+from feltool.walking.model import with_planar_base
 from feltool.walking.pinned import HybridLoop
 
 
@@ -67,6 +68,8 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
         problems += walker_problems
         if wm is not None:
             named = wm.robot  # the names include the base joints
+    elif robot is not None and cfg is None and _planar_walker(raw):
+        named = with_planar_base(robot)  # (the schema failed elsewhere: no false name errors)
     if robot is not None:
         problems += _name_problems(raw, named or robot)
         if cfg is not None and cfg.plant is not None:
@@ -84,6 +87,13 @@ def _dedupe(problems):
             seen.add(p)
             out.append(p)
     return out
+
+
+def _planar_walker(raw: dict[str, Any]) -> bool:
+    """Whether a raw config (one that failed the schema) asks for a physical walker on the
+    planar base feltool adds, whose joint names then include the base's."""
+    w = raw.get("walking")
+    return isinstance(w, dict) and "feet" in w and w.get("base", "planar") == "planar"
 
 
 def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:

@@ -4,7 +4,7 @@ A world event changes only the simulated plant; the known model that computes th
 the allocation) stays as it was, so the feedback rises at the event and FEL has to bring it back
 down. Events apply to any robot: a ground slope (gravity rotated about the world's y axis; for a
 walker whose stance foot is pinned this is the slope under the foot), a payload (a point mass at a
-frame), or a link's new mass. Events that change the motion (period, amplitude, goal) are
+frame), or a link's new mass (or every body's mass scaled). Events that change the motion (period, amplitude, goal) are
 applied by :mod:`feltool.motion.motion`.
 """
 
@@ -48,6 +48,11 @@ def changed_model(model: pin.Model, events: list[EventConfig]) -> pin.Model:
             point = pin.Inertia(ev.mass, at, np.zeros((3, 3)))
             plant.inertias[frame.parentJoint] = (plant.inertias[frame.parentJoint]
                                                  + frame.placement.act(point))
+        elif ev.kind == "mass" and ev.link is None:  # every body scaled
+            for j in range(1, plant.njoints):
+                own = plant.inertias[j]
+                plant.inertias[j] = pin.Inertia(own.mass * ev.scale, own.lever,
+                                                own.inertia * ev.scale)
         elif ev.kind == "mass":
             frame = plant.frames[plant.getFrameId(ev.link)]
             own, at = frame.inertia, frame.placement
@@ -55,7 +60,7 @@ def changed_model(model: pin.Model, events: list[EventConfig]) -> pin.Model:
                 own, at = plant.inertias[frame.parentJoint], pin.SE3.Identity()
             if own.mass <= 0.0:
                 raise ConfigError([("events", f"link '{ev.link}' has no mass to change")])
-            scale = ev.mass / own.mass - 1.0
+            scale = (ev.scale if ev.scale is not None else ev.mass / own.mass) - 1.0
             delta = pin.Inertia(own.mass * scale, own.lever, own.inertia * scale)
             plant.inertias[frame.parentJoint] = plant.inertias[frame.parentJoint] + at.act(delta)
     return plant
