@@ -194,7 +194,7 @@ class PhysicalGraph:
         return grad, st["hess"] + ca.vec(ca.blockcat(blocks_h))
 
     def _model_sums(self, st, qd, vd, ad, A, E):
-        """The step's terms of the model learner's sums (:mod:`feltool.learning.walker_model`)
+        r"""The step's terms of the model learner's sums (:mod:`feltool.learning.walker_model`)
         added to the state's: with :math:`\Phi = [A Y, I]` and :math:`e_m = A e`,
         ``grad_m += Phi^T e_m``, ``hess_m += Phi^T Phi``."""
         if not self.n_model:
