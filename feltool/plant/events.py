@@ -4,8 +4,9 @@ A world event changes only the simulated plant; the known model that computes th
 the allocation) stays as it was, so the feedback rises at the event and FEL has to bring it back
 down. Events apply to any robot: a ground slope (gravity rotated about the world's y axis; for a
 walker whose stance foot is pinned this is the slope under the foot), a payload (a point mass at a
-frame), or a link's new mass (or every body's mass scaled). Events that change the motion (period, amplitude, goal) are
-applied by :mod:`feltool.motion.motion`.
+frame), or a link's new mass (or every body's mass scaled). Events that change the motion
+(period, amplitude, goal) are applied by :mod:`feltool.motion.motion`. The events change the
+experiment's plant (a ``plant:`` block's, else the known model): :func:`world_plant`.
 """
 
 from __future__ import annotations

@@ -152,7 +152,8 @@ class SeedRecord:
                 and cfg.walking.poincare:
             from feltool.gait.poincare import poincare
 
-            summary["poincare"] = poincare(exp, state.theta, state.q, state.v, state.plant)
+            summary["poincare"] = poincare(exp, state.theta, state.q, state.v, state.plant,
+                                           theta_m=state.theta_m)
         return summary
 
     def parameters(self, state: SeedState, run_cycle) -> dict[str, np.ndarray]:
