@@ -148,3 +148,30 @@ def test_urdf_link_count_is_bounded_and_long_chains_within_it_load(tmp_path, cap
         (tmp_path / "ok.urdf").write_text(_chain_urdf(999, joint_type))
         robot = load_robot(str(tmp_path / "ok.urdf"))
         assert robot.model.nv == (1 if joint_type == "fixed" else 999)
+
+
+WALKER = Path(__file__).resolve().parent.parent / "configs" / "gaits" / "five_link_walker.yaml"
+
+
+@pytest.mark.parametrize("setting, needle", [
+    ("plant={payloads: [{frame: backpack, mass: 3.2}]}",
+     "plant.payloads.0.frame: robot 'five_link_walker' has no frame 'backpack'"),
+    ("events=[{cycle: 3, kind: payload, frame: backpack, mass: 3.2}]",
+     "events.0.frame: the robot has no frame/link 'backpack'"),
+    ("plant={friction: {left_knee: {viscous: -1.0}}}",
+     "plant.friction.left_knee.viscous: Input should be greater than or equal to 0"),
+    ("plant={motor_gain: {left_knee: 0.0}}", "plant.motor_gain.left_knee"),
+    ("plant={robot: five_link_walker}", "plant.robot: a physical walker's plant is its own"),
+    ("learning.model={features: none, rate: 0.0, update: gauss_newton}",
+     "learning.model.motor_bias: with features none, give motor_bias > 0"),
+], ids=["payload_unknown_link", "event_payload_unknown_link", "negative_damping",
+        "zero_motor_gain", "second_robot", "nothing_to_learn"])
+def test_a_physical_walkers_bad_plant_is_one_line_naming_the_field(setting, needle, tmp_path,
+                                                                    capsys):
+    """A walker in a world the model does not know (issue 28): a payload on a link the walker
+    lacks, a negative damping, a zero motor gain ... are one line naming the field, exit 2."""
+    code, err = _run(["run", str(WALKER), "--set", setting, "--out", str(tmp_path / "run"),
+                      "--no-progress"], capsys)
+    assert code == 2 and needle in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "run").exists()

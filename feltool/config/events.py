@@ -14,9 +14,10 @@ from pydantic import (
 from feltool.bounds import (
     MAX_CYCLES,
     MAX_MASS,
+    MAX_MASS_SCALE,
     MAX_PERIOD_S,
 )
-from feltool.config.base import Angle, NonNegFloat, PositiveFloat, Strict
+from feltool.config.base import Angle, Length, NonNegFloat, PositiveFloat, Strict
 
 
 class EventConfig(Strict):
@@ -36,7 +37,13 @@ class EventConfig(Strict):
     mass: NonNegFloat | None = Field(None, le=MAX_MASS, description="Mass in [kg] (payload, "
                                      f"mass); at most {MAX_MASS:g}.")
     frame: str | None = Field(None, description="URDF link/frame carrying the payload.")
-    link: str | None = Field(None, description="URDF link whose mass is set (kind mass).")
+    com: list[Length] | None = Field(None, min_length=3, max_length=3, description="Payload: "
+        "where its point mass sits in `frame`, [x, y, z] in [m]; default the frame's origin.")
+    link: str | None = Field(None, description="URDF link whose mass is set (kind mass); "
+                             "with `scale` and no link: every body.")
+    scale: PositiveFloat | None = Field(None, le=MAX_MASS_SCALE, description="Kind mass: "
+        "instead of `mass`, multiply the body's (no `link`: every body's) mass and rotational "
+        "inertia by this factor [-] (the centres of mass stay).")
     period_s: PositiveFloat | None = Field(None, le=MAX_PERIOD_S, description="The motion's "
         "new period in [s]: the phase's frequency moves to 2 pi / period_s smoothly (C1 in "
         "time), so q_d and its velocity stay continuous; the RMPs, functions of the phase, "
@@ -59,10 +66,16 @@ class EventConfig(Strict):
                 raise ValueError("an event changes the world (kind: slope, payload or mass) or "
                                  "the motion (period_s, amplitude, goal); give one")
             return self
+        if self.com is not None and self.kind != "payload":
+            raise ValueError("'com' is the position of a payload; give it with kind payload")
         if motion:
             raise ValueError(f"'{', '.join(motion)}' change the motion; give them in an event "
                              f"of their own, without kind '{self.kind}'")
         need = {"slope": ["angle"], "payload": ["mass", "frame"], "mass": ["mass", "link"]}
+        if self.scale is not None:
+            if self.kind != "mass" or self.mass is not None:
+                raise ValueError("'scale' is a kind mass event's factor, instead of 'mass'")
+            need["mass"] = []
         missing = [f for f in need[self.kind] if getattr(self, f) is None]
         if missing:
             raise ValueError(f"a '{self.kind}' event needs " + ", ".join(missing))

@@ -23,10 +23,12 @@ class ModelLearningConfig(Strict):
     u_ff = RNEA_model(q_d, qd_d, qdd_d) + S_m Phi(q_d, qd_d, qdd_d) theta_m, with the feedback of
     the error joints S_m (default: every actuated joint) as the error signal."""
 
-    features: Literal["regressor", "phase_basis"] = Field("regressor", description="Features "
-        "Phi: regressor = Pinocchio's joint-torque regressor, so theta_m are corrections of the "
-        "10 inertial parameters per body [m, m c, I at the joint frame origin]; phase_basis = "
-        "normalised von Mises functions of the phase, one set per joint, theta_m in [N m].")
+    features: Literal["regressor", "phase_basis", "none"] = Field("regressor", description=""
+        "Features Phi: regressor = Pinocchio's joint-torque regressor, so theta_m are "
+        "corrections of the 10 inertial parameters per body [m, m c, I at the joint frame "
+        "origin]; phase_basis = normalised von Mises functions of the phase, one set per "
+        "joint, theta_m in [N m]; none = no model correction (physical walkers: the motor "
+        "biases alone).")
     error: Literal["all_feedback", "tracking"] | list[str] = Field("all_feedback", description=""
         "Error signal: all actuated feedback (Kawato's FEL), only the tracking joints' feedback "
         "(leaves the stabilizing feedback to trajectory FEL when both run), or a list of joints. "
@@ -50,6 +52,10 @@ class ModelLearningConfig(Strict):
                                    "damping, relative to the mean diagonal of Phi^T Phi [-]; "
                                    "directions the motion does not excite are then left "
                                    f"unchanged; at most {MAX_DAMPING:g}.")
+    motor_bias: NonNegFloat = Field(0.0, le=1.0, description="Physical walkers: also learn a "
+        "constant torque per motor (stance-relative labels), its step this fraction of the "
+        "cycle's Levenberg-Marquardt step (alone: of the cycle's mean motor-space error) [-]; "
+        "independent of rate_hz, period and basis; 0 = none (docs/biped.md).")
     jacobian: Literal["learned", "nominal"] = Field("learned", description="Inverse model whose "
         "derivatives the trajectory learner's Jacobian uses when both learn: learned = the known "
         "model plus the current correction (chain rule through Phi theta_m; regressor features "

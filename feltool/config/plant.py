@@ -96,6 +96,9 @@ class PlantConfig(Strict):
     payloads: list[Payload] = Field(default_factory=list, description="Payloads fixed to frames.")
     friction: dict[str, JointFriction] = Field(default_factory=dict, description="Friction per "
                                                "joint, by joint name.")
+    motor_gain: dict[str, PositiveFloat] = Field(default_factory=dict, description="Motor gain "
+        "error per actuated joint, by joint name: the plant's motor applies this factor times "
+        "the commanded torque [-] (default 1: exact motors).")
     simulator: Literal["pinocchio", "mujoco"] = Field("pinocchio", description="What simulates "
         "the plant: `pinocchio` (the rigid model, changed by this block) or `mujoco` (the same "
         "URDF compiled by MuJoCo with its soft contacts, the `mujoco` package: pip install "
@@ -104,7 +107,8 @@ class PlantConfig(Strict):
     @model_validator(mode="after")
     def _mujoco_alone(self) -> PlantConfig:
         if self.simulator == "mujoco":
-            given = [k for k in ("robot", "bodies", "payloads", "friction") if getattr(self, k)]
+            given = [k for k in ("robot", "bodies", "payloads", "friction", "motor_gain")
+                     if getattr(self, k)]
             if given:
                 raise ValueError(f"simulator: mujoco simulates the model's URDF as it is; "
                                  f"remove {', '.join(given)}")

@@ -49,17 +49,20 @@ def _spatial_inertia(pi):
     return ca.vertcat(ca.horzcat(m * ca.DM.eye(3), -skew(h)), ca.horzcat(skew(h), Io))
 
 
-def _rnea_expr(model: pin.Model, joints: list[Joint], q, v, a, pi=None):
+def _rnea_expr(model: pin.Model, joints: list[Joint], q, v, a, pi=None, gravity=None):
     """RNEA (Featherstone, Table 5.1) as an SX expression.
 
     Forward pass: ``v_i = X_i v_p + S qd_i``, ``a_i = X_i a_p + S qdd_i + v_i x (S qd_i)``
     (``a_0 = -g``), ``f_i = I_i a_i + v_i x* (I_i v_i)``. Backward pass: ``tau_i = S^T f_i``,
     ``f_p += X_i^T f_i``. Finally ``tau += armature * a``. ``pi``: the bodies' dynamic
-    parameters (10 per joint, in joint order) instead of the model's inertias.
+    parameters (10 per joint, in joint order) instead of the model's inertias; ``gravity``:
+    the linear gravity (3) instead of the model's.
     """
     nj = model.njoints
     xforms, vel, bias = _velocity_pass(model, joints, q, v)
-    acc = [ca.SX(gravity_acceleration(model))] + [None] * (nj - 1)
+    a0 = ca.SX(gravity_acceleration(model)) if gravity is None else \
+        ca.vertcat(-gravity, ca.SX.zeros(3))
+    acc = [a0] + [None] * (nj - 1)
     force = [None] * nj
     for jt in joints:
         i, S = jt.index, motion_subspace(jt)
@@ -172,6 +175,20 @@ def symbolic_rnea_parametric(model: pin.Model) -> ca.Function:
     tau = _rnea_expr(model, joints, q, v, a, pi)
     return ca.Function("rnea_parametric", [q, v, a, pi], [ca.densify(tau)],
                        ["q", "v", "a", "pi"], ["tau"])
+
+
+def symbolic_rnea_world(model: pin.Model) -> ca.Function:
+    """``rnea(q, v, a, pi, g) -> tau``: the inverse model with the bodies' inertial parameters
+    ``pi`` (as in :func:`symbolic_rnea_parametric`) and the linear gravity ``g`` (3, in
+    [m/s^2], e.g. ``(0, 0, -9.81)``) as inputs: one expression for every world of the same
+    joints (a payload, changed masses, a slope)."""
+    check_has_joints(model)
+    joints = describe_joints(model)
+    q, v, a = _symbols(model, "a")
+    pi, g = ca.SX.sym("pi", 10 * (model.njoints - 1)), ca.SX.sym("g", 3)
+    tau = _rnea_expr(model, joints, q, v, a, pi, g)
+    return ca.Function("rnea_world", [q, v, a, pi, g], [ca.densify(tau)],
+                       ["q", "v", "a", "pi", "g"], ["tau"])
 
 
 def symbolic_aba(model: pin.Model) -> ca.Function:

@@ -68,12 +68,26 @@ def per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop,
 
 
 def hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics,
-                  loop=None, learn: bool = True) -> CycleOutcome:
+                  loop=None, learn: bool = True, theta_m: np.ndarray | None = None
+                  ) -> CycleOutcome:
     """One cycle of the hybrid loop (walkers, allocated motors), then one update (eq. 3.6);
     the learner's Jacobian goes through the stance-dependent map q_d = G_s p_d. ``loop``: the
-    loop to run (default ``exp.hybrid``; a disturbed or ILC copy); ``learn`` False: no update."""
+    loop to run (default ``exp.hybrid``; a disturbed or ILC copy); ``learn`` False: no update;
+    ``theta_m``: a physical walker's model correction and motor biases (``learning.model``,
+    :mod:`feltool.learning.walker_model`), updated after the cycle too."""
+    if plant is exp.dynamics and exp.plant is not None:  # the seed's world: the experiment's plant
+        plant = exp.plant
     P, Pv, Pa = exp.primitives.desired(theta)
-    log = (loop or exp.hybrid).run_cycle(plant, q, v, P, Pv, Pa)
+    loop = loop or exp.hybrid
+    model = exp.model_learner if getattr(exp.model_learner, "walker", False) else None
+    if model is not None and theta_m is not None:
+        loop.model_correction = model.correction(theta_m)
+        loop.motor_bias = model.split(theta_m)[1] if model.n_bias else None
+    log = loop.run_cycle(plant, q, v, P, Pv, Pa)
+    theta_m_next = theta_m
+    if model is not None and theta_m is not None and learn and log.fall is None:
+        theta_m_next = model.step(theta_m, log.Qd, log.Vd, log.Ad, log.allocation,
+                                  error_torques(exp, log))
     theta_next = theta
     if learn and log.fall is None and exp.learner.n_learned:
         _, *derivs = exp.hybrid.jacobian_derivatives(log)
@@ -86,6 +100,7 @@ def hybrid_cycle(exp: Experiment, theta: np.ndarray, q, v, plant: Dynamics,
         else:
             theta_next = exp.learner.step(theta, J, E)
     out = cycle_outcome(exp, log, log.Qd, theta_next)
+    out.theta_m_next = theta_m_next
     out.fall, out.impacts = log.fall, list(log.impacts)
     if getattr(log, "steps", None) is not None:
         out.contact = contact_metrics(log, exp)

@@ -32,6 +32,7 @@ from feltool.learning.fel import FEL_UPDATES, FeedbackErrorLearner
 from feltool.learning.model import ModelLearner, PhaseBasisFeatures, RegressorFeatures
 from feltool.learning.rates import basis_gain, per_sample_rates, samples_per_cycle
 from feltool.learning.sensitivity import CasadiJacobian
+from feltool.learning.walker_model import WalkerModelLearner
 from feltool.motion.motion import motion_problems, refuse_varying_phase
 from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive
 from feltool.plant.disturbances import problems as disturbance_problems
@@ -40,6 +41,7 @@ from feltool.plant.rigid import make_plant, plant_problems, plant_robot
 from feltool.robot.frames import FrameAngle
 from feltool.robot.robot import Robot, load_robot, robot_spec, with_angle_coordinates
 from feltool.walking.build import physical_loop, pinned_allocation, pinned_walker, walker_model
+from feltool.walking.model import with_planar_base
 from feltool.walking.pinned import HybridLoop
 
 
@@ -72,6 +74,8 @@ def validate(raw: dict[str, Any], source: Path | None = None) -> tuple[Experimen
         problems += walker_problems
         if wm is not None:
             named = wm.robot  # the names include the base joints
+    elif robot is not None and cfg is None and _planar_walker(raw):
+        named = with_planar_base(robot)  # (the schema failed elsewhere: no false name errors)
     if robot is not None:
         problems += _name_problems(raw, named or robot)
         if cfg is not None and cfg.plant is not None:
@@ -90,6 +94,13 @@ def _dedupe(problems):
             seen.add(p)
             out.append(p)
     return out
+
+
+def _planar_walker(raw: dict[str, Any]) -> bool:
+    """Whether a raw config (one that failed the schema) asks for a physical walker on the
+    planar base feltool adds, whose joint names then include the base's."""
+    w = raw.get("walking")
+    return isinstance(w, dict) and "feet" in w and w.get("base", "planar") == "planar"
 
 
 def _name_problems(raw: dict[str, Any], robot: Robot) -> list[tuple[str, str]]:
@@ -307,15 +318,17 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
     _check_phase(cfg, joints, robot, {joints[i] for i in (*fixed, *referenced)}, src)
     plant = dynamics  # (with a MuJoCo plant: the known model predicts, MuJoCo simulates)
     if cfg.plant is not None and not uses_mujoco(cfg):
-        if any(ev.changes_world for ev in cfg.events):
-            raise ConfigError([("events", "events change the known model's world; combining "
-                                          "them with a plant block is not supported yet")], src)
+        if wm is not None and cfg.plant.robot is not None:
+            raise ConfigError([("plant.robot", "a physical walker's plant is its own robot "
+                                               "changed by the plant block (bodies, payloads, "
+                                               "friction, motor_gain); remove plant.robot")], src)
         plant_rb = reduce_robot(plant_robot(cfg.plant, full_robot,
                                             source.parent if source else None), locked)
         plant_rb.set_gravity(cfg.gravity)
         plant = make_plant(cfg.plant, plant_rb, joints, make_dynamics(
             plant_rb.model, "casadi" if cfg.backend == "casadi" else "pinocchio"))
-    model_learner = _model_learner(cfg, robot, joints, actuated, source)
+    model_learner = None if wm is not None else _model_learner(cfg, robot, joints, actuated,
+                                                               source)
     limits = None
     if dynamics.euclidean and (cfg.sim.joint_limits, cfg.sim.torque_limits) != ("ignore",) * 2:
         m = robot.model
@@ -341,18 +354,19 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
         if L.sensitivity != "exact":
             raise ConfigError([("learning.sensitivity", "walking/actuation support only "
                                                         "'exact'")], src)
-        if model_learner is not None:
-            raise ConfigError([("learning.model", "model learning is not supported for "
-                                                  "walking/actuated robots yet")], src)
+        if L.model is not None and wm is None:
+            raise ConfigError([("learning.model", "model learning on a walker needs a "
+                                                  "physical walker (walking.feet)")], src)
         if wm is not None:
             if cfg.actuation is not None:
                 raise ConfigError([("actuation", "a physical walker's motors are its URDF "
                                                  "joints (every joint but the base's); remove "
                                                  "the actuation block")], src)
-            if cfg.plant is not None and not uses_mujoco(cfg):
-                raise ConfigError([("plant", "not supported for a physical walker yet")], src)
             hybrid = physical_loop(cfg, wm, law, dynamics, joints, error_mask, src)
             hybrid.reference = dict(referenced)
+            if L.model is not None:
+                model_learner = _walker_model_learner(cfg, robot, hybrid.walker.motor_names,
+                                                      src)
             if uses_mujoco(cfg):
                 hybrid = mujoco_walker_loop(cfg, hybrid, src)
         else:
@@ -413,6 +427,10 @@ def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actua
     if M is None:
         return None
     problems = []
+    if M.features == "none" or M.motor_bias > 0:
+        problems.append(("learning.model.features" if M.features == "none" else
+                         "learning.model.motor_bias", "only for a physical walker "
+                                                      "(walking.feet)"))
     if cfg.learning.step == "per_step":
         problems.append(("learning.model", "needs learning.step: per_cycle (the trajectory "
                                            "learner's per_step loop has no model correction)"))
@@ -447,6 +465,29 @@ def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actua
     rate = M.rate if M.update == "gauss_newton" else \
         M.rate / (samples_per_cycle(cfg.period_s, cfg.sim.rate_hz) * kappa)
     return ModelLearner(features, mask * actuated, rate, M.update, M.step, M.damping)
+
+
+def _walker_model_learner(cfg: ExperimentConfig, robot: Robot, motors: list[str],
+                          src: str | None) -> WalkerModelLearner:
+    """A physical walker's classic FEL (``learning.model``): the regressor's model correction
+    and/or the motor biases (:mod:`feltool.learning.walker_model`)."""
+    M = cfg.learning.model
+    problems = []
+    if M.features == "phase_basis":
+        problems.append(("learning.model.features", "a physical walker learns 'regressor' "
+                                                    "(a model correction) or 'none' (with "
+                                                    "motor_bias)"))
+    if M.update != "gauss_newton" or M.step != "per_cycle":
+        problems.append(("learning.model.update", "a physical walker's model learning is a "
+                                                  "Levenberg-Marquardt step per cycle: "
+                                                  "update gauss_newton, step per_cycle"))
+    if M.features == "none" and M.motor_bias == 0:
+        problems.append(("learning.model.motor_bias", "with features none, give motor_bias "
+                                                      "> 0 (else nothing is learned)"))
+    if problems:
+        raise ConfigError(problems, src)
+    model = robot.model if M.features == "regressor" else None
+    return WalkerModelLearner(model, motors, M.rate, M.motor_bias, M.damping)
 
 
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:

@@ -22,19 +22,27 @@ from feltool.engines.compiled.engine import compiled_engine, compiled_runner
 
 def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
              iterations: int = 10, newton: int = 6, eps: float = 1e-6,
-             spectrum: bool = True) -> dict[str, Any]:
+             spectrum: bool = True, theta_m: np.ndarray | None = None) -> dict[str, Any]:
     """Fixed point, Jacobian eigenvalues, stride length [m] and speed [m/s] of a walker's gait.
 
     Args:
         exp: A built :class:`feltool.experiment.experiment.Experiment` with ``walking``.
         theta: RMP parameters (held fixed).
         q, v: A start state (e.g. the end of learning) at stance label 0.
-        plant: The simulated world (default the known model).
+        plant: The simulated world (default the experiment's plant).
         spectrum: Also the eigenvalues, stride and speed at the fixed point (else only the
             fixed point and its residual).
+        theta_m: A physical walker's learned model correction and motor biases
+            (``learning.model``), held fixed too.
     """
     hyb = exp.hybrid
     plant = plant or exp.dynamics
+    if plant is exp.dynamics and exp.plant is not None:
+        plant = exp.plant
+    model = exp.model_learner if getattr(exp.model_learner, "walker", False) else None
+    if model is not None and theta_m is not None:
+        hyb.model_correction = model.correction(theta_m)
+        hyb.motor_bias = model.split(theta_m)[1] if model.n_bias else None
     P, Pv, Pa = exp.primitives.desired(theta)
     nv = len(q)
 
@@ -42,7 +50,7 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
         log = hyb.run_cycle(plant, x[:nv], x[nv:], P, Pv, Pa)
         return (None if log.fall else np.concatenate([log.q_end, log.v_end])), log.fall
 
-    step = _compiled_step(exp, theta, plant) or python_step
+    step = _compiled_step(exp, theta, plant, theta_m) or python_step
     x = np.concatenate([q, v])
     for _ in range(iterations):
         nxt, fall = step(x)
@@ -88,7 +96,7 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
     }
 
 
-def _compiled_step(exp, theta: np.ndarray, plant):
+def _compiled_step(exp, theta: np.ndarray, plant, theta_m=None):
     """The map ``x -> (x_next or None, why it stopped)`` on the compiled engine when it runs
     this experiment's cycles (the cycle's end state does not depend on the update that follows
     it, so θ stays held), else None."""
@@ -97,7 +105,7 @@ def _compiled_step(exp, theta: np.ndarray, plant):
     run, nv = compiled_runner(exp), exp.robot.model.nv
 
     def step(x):
-        out = run(theta, x[:nv], x[nv:], plant)
+        out = run(theta, x[:nv], x[nv:], plant, theta_m)
         return (None if out.fall else np.concatenate([out.q_end, out.v_end])), out.fall
 
     return step

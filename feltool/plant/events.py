@@ -4,8 +4,9 @@ A world event changes only the simulated plant; the known model that computes th
 the allocation) stays as it was, so the feedback rises at the event and FEL has to bring it back
 down. Events apply to any robot: a ground slope (gravity rotated about the world's y axis; for a
 walker whose stance foot is pinned this is the slope under the foot), a payload (a point mass at a
-frame), or a link's new mass. Events that change the motion (period, amplitude, goal) are
-applied by :mod:`feltool.motion.motion`.
+frame), or a link's new mass (or every body's mass scaled). Events that change the motion
+(period, amplitude, goal) are applied by :mod:`feltool.motion.motion`. The events change the
+experiment's plant (a ``plant:`` block's, else the known model): :func:`world_plant`.
 """
 
 from __future__ import annotations
@@ -44,9 +45,15 @@ def changed_model(model: pin.Model, events: list[EventConfig]) -> pin.Model:
             plant.gravity = pin.Motion(Ry @ plant.gravity.linear, np.zeros(3))
         elif ev.kind == "payload":
             frame = plant.frames[plant.getFrameId(ev.frame)]
-            point = pin.Inertia(ev.mass, np.zeros(3), np.zeros((3, 3)))
+            at = np.zeros(3) if ev.com is None else np.array(ev.com, dtype=float)
+            point = pin.Inertia(ev.mass, at, np.zeros((3, 3)))
             plant.inertias[frame.parentJoint] = (plant.inertias[frame.parentJoint]
                                                  + frame.placement.act(point))
+        elif ev.kind == "mass" and ev.link is None:  # every body scaled
+            for j in range(1, plant.njoints):
+                own = plant.inertias[j]
+                plant.inertias[j] = pin.Inertia(own.mass * ev.scale, own.lever,
+                                                own.inertia * ev.scale)
         elif ev.kind == "mass":
             frame = plant.frames[plant.getFrameId(ev.link)]
             own, at = frame.inertia, frame.placement
@@ -54,19 +61,28 @@ def changed_model(model: pin.Model, events: list[EventConfig]) -> pin.Model:
                 own, at = plant.inertias[frame.parentJoint], pin.SE3.Identity()
             if own.mass <= 0.0:
                 raise ConfigError([("events", f"link '{ev.link}' has no mass to change")])
-            scale = ev.mass / own.mass - 1.0
+            scale = (ev.scale if ev.scale is not None else ev.mass / own.mass) - 1.0
             delta = pin.Inertia(own.mass * scale, own.lever, own.inertia * scale)
             plant.inertias[frame.parentJoint] = plant.inertias[frame.parentJoint] + at.act(delta)
     return plant
 
 
-def plant_for_cycle(model: pin.Model, events: list[EventConfig], cycle: int,
+def world_plant(base: Dynamics, events: list[EventConfig], backend: str = "pinocchio"
+                ) -> Dynamics:
+    """``base`` (the experiment's plant: the known model or a ``plant:`` block's) with the world
+    ``events`` applied to its rigid model; its joint friction and motor gains are kept."""
+    rigid = getattr(base, "rigid", base)
+    changed = make_dynamics(changed_model(rigid.model, events), backend)
+    return changed if rigid is base else base.with_rigid(changed)
+
+
+def plant_for_cycle(base: Dynamics, events: list[EventConfig], cycle: int,
                     backend: str = "pinocchio") -> Dynamics | None:
     """The plant to simulate from ``cycle`` on if an event changes the world at ``cycle``, else
-    None."""
+    None; ``base`` is the experiment's plant before any event."""
     if not any(ev.cycle == cycle and ev.changes_world for ev in events):
         return None
-    return make_dynamics(changed_model(model, [ev for ev in events if ev.cycle <= cycle]), backend)
+    return world_plant(base, [ev for ev in events if ev.cycle <= cycle], backend)
 
 
-__all__ = ["changed_model", "check_events", "plant_for_cycle"]
+__all__ = ["changed_model", "check_events", "plant_for_cycle", "world_plant"]

@@ -8,8 +8,9 @@ A config's ``plant:`` block makes them differ (docs/model_learning.md):
 * ``bodies:`` overrides of a body's mass, centre of mass and rotational inertia,
 * ``payloads:`` rigid payloads fixed to frames (added to the carrying body's inertia),
 * ``friction:`` joint friction :math:`\tau_f = d\,\dot q + c \tanh(\dot q / v_c)` that opposes
-  the motion, so the plant's forward model is :math:`\ddot q = \mathrm{ABA}(q, \dot q, \tau - \tau_f)`
-  and its inverse model :math:`\mathrm{RNEA}(q, \dot q, \ddot q) + \tau_f`.
+  the motion, and ``motor_gain:`` a factor :math:`k` of each commanded torque, so the plant's
+  forward model is :math:`\ddot q = \mathrm{ABA}(q, \dot q, k\tau - \tau_f)` and its inverse
+  model :math:`(\mathrm{RNEA}(q, \dot q, \ddot q) + \tau_f) / k`.
 
 Overrides are applied to a copy of the full robot before the experiment's locked joints are
 removed, so a body is named by the joint that moves it in the URDF.
@@ -44,7 +45,8 @@ def plant_problems(plant: PlantConfig, robot: Robot,
             problems.append(("plant.robot", f"the plant robot '{target.name}' lacks the model's "
                                             f"joints {', '.join(missing)}"))
     listing = ", ".join(target.joint_names)
-    for section, names in (("bodies", plant.bodies), ("friction", plant.friction)):
+    for section, names in (("bodies", plant.bodies), ("friction", plant.friction),
+                           ("motor_gain", plant.motor_gain)):
         for name in names:
             if name not in target.joint_names:
                 problems.append((f"plant.{section}.{name}", f"robot '{target.name}' has no joint "
@@ -95,34 +97,42 @@ def _payload_inertia(p: Payload) -> pin.Inertia:
 
 
 class FrictionPlant:
-    """A rigid-body plant with joint friction (see the module docstring for the law).
+    """A rigid-body plant with joint friction and motor gain errors (see the module docstring
+    for the law): a joint's commanded torque ``tau`` acts as ``gain * tau``.
 
     Args:
         rigid: The plant's rigid-body dynamics (Pinocchio backend).
         viscous: ``(nv,)`` viscous coefficients in [N m s/rad].
         coulomb: ``(nv,)`` Coulomb levels in [N m].
         coulomb_velocity: ``(nv,)`` smoothing velocities in [rad/s].
+        motor_gain: ``(nv,)`` factors of the commanded torques [-]; default 1.
     """
 
     def __init__(self, rigid: Dynamics, viscous: np.ndarray, coulomb: np.ndarray,
-                 coulomb_velocity: np.ndarray):
+                 coulomb_velocity: np.ndarray, motor_gain: np.ndarray | None = None):
         self.rigid = rigid
         self.nq, self.nv = rigid.nq, rigid.nv
         self.euclidean = getattr(rigid, "euclidean", False)
         self.viscous, self.coulomb, self.coulomb_velocity = viscous, coulomb, coulomb_velocity
+        self.motor_gain = np.ones(rigid.nv) if motor_gain is None else motor_gain
+
+    def with_rigid(self, rigid: Dynamics) -> FrictionPlant:
+        """The same friction and motor gains on another rigid-body plant (a world event's)."""
+        return FrictionPlant(rigid, self.viscous, self.coulomb, self.coulomb_velocity,
+                             self.motor_gain)
 
     def friction(self, v: np.ndarray) -> np.ndarray:
         """Friction torque in [N m] at joint velocities ``v`` (rows or one vector)."""
         return self.viscous * v + self.coulomb * np.tanh(v / self.coulomb_velocity)
 
     def forward(self, q, v, tau):
-        return self.rigid.forward(q, v, tau - self.friction(v))
+        return self.rigid.forward(q, v, self.motor_gain * tau - self.friction(v))
 
     def inverse(self, q, v, a):
-        return self.rigid.inverse(q, v, a) + self.friction(v)
+        return (self.rigid.inverse(q, v, a) + self.friction(v)) / self.motor_gain
 
     def inverse_batch(self, Q, V, A):
-        return self.rigid.inverse_batch(Q, V, A) + self.friction(V)
+        return (self.rigid.inverse_batch(Q, V, A) + self.friction(V)) / self.motor_gain
 
     def integrate(self, q, dq):
         return self.rigid.integrate(q, dq)
@@ -139,15 +149,18 @@ def make_plant(plant: PlantConfig, robot: Robot, joints: list[str], rigid: Dynam
         order[robot.v_index(name)] = name
     if order != joints:
         raise RobotError(f"the plant's moving joints {order} differ from the model's {joints}")
-    if not plant.friction:
+    if not plant.friction and not plant.motor_gain:
         return rigid
     nv = len(joints)
-    d, c, vc = np.zeros(nv), np.zeros(nv), np.ones(nv)
+    d, c, vc, gain = np.zeros(nv), np.zeros(nv), np.ones(nv), np.ones(nv)
     for name, f in plant.friction.items():
         if name in joints:
             i = joints.index(name)
             d[i], c[i], vc[i] = f.viscous, f.coulomb, f.coulomb_velocity
-    return FrictionPlant(rigid, d, c, vc)
+    for name, k in plant.motor_gain.items():
+        if name in joints:
+            gain[joints.index(name)] = k
+    return FrictionPlant(rigid, d, c, vc, gain)
 
 
 __all__ = ["FrictionPlant", "make_plant", "plant_problems", "plant_robot"]

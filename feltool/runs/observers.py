@@ -152,7 +152,8 @@ class SeedRecord:
                 and cfg.walking.poincare:
             from feltool.gait.poincare import poincare
 
-            summary["poincare"] = poincare(exp, state.theta, state.q, state.v, state.plant)
+            summary["poincare"] = poincare(exp, state.theta, state.q, state.v, state.plant,
+                                           theta_m=state.theta_m)
         return summary
 
     def parameters(self, state: SeedState, run_cycle) -> dict[str, np.ndarray]:
@@ -283,7 +284,8 @@ def metrics_row(exp: Experiment, seed: int, cycle: int, out: CycleOutcome,
         row["frequency_hz"] = float(out.cycle.dphi.sum() / (2.0 * np.pi * row["cycle_s"]))
     if out.contact is not None:
         for key in ("min_normal_force", "max_friction_ratio", "min_clearance",
-                    "max_impulse_ratio", "impact_energy_lost", "step_length", "distance"):
+                    "max_impulse_ratio", "impact_energy_lost", "step_length", "distance",
+                    "stabilized_rms"):
             row[key] = out.contact[key]
     return row
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from feltool.bounds import check_cycles, check_seed
 from feltool.control.closed_loop import ClosedLoop, CycleLog
-from feltool.dynamics.interface import Dynamics, make_dynamics
+from feltool.dynamics.interface import Dynamics
 from feltool.engines.compiled.engine import compiled_engine, compiled_runner
 from feltool.engines.ilc import cycle_runner as ilc_cycle_runner
 from feltool.engines.ilc_walker import cycle_runner as walker_cycle_runner
@@ -34,7 +34,7 @@ from feltool.errors import InputError
 from feltool.experiment.experiment import Experiment
 from feltool.learning.fel import FEL_UPDATES
 from feltool.motion.motion import Motion, varying_phase
-from feltool.plant.events import changed_model, plant_for_cycle
+from feltool.plant.events import plant_for_cycle, world_plant
 from feltool.runs.checkpoint import Checkpointer
 from feltool.runs.divergence import explain as explain_divergence
 from feltool.runs.observers import Callback, SeedCheckpoints, SeedRecord
@@ -169,7 +169,8 @@ def _cycle_runner(exp: Experiment, theta0: np.ndarray,
                 exp.config.learning.update not in FEL_UPDATES
                 or exp.config.disturbances is not None):
             return walker_cycle_runner(exp, theta0, seed)  # ILC, baseline, disturbances
-        return lambda theta, q, v, plant, theta_m=None: hybrid_cycle(exp, theta, q, v, plant)
+        return lambda theta, q, v, plant, theta_m=None: hybrid_cycle(exp, theta, q, v, plant,
+                                                                      theta_m=theta_m)
     loops: dict[int, ClosedLoop] = {}
 
     def loop_for(plant: Dynamics) -> ClosedLoop:
@@ -214,7 +215,12 @@ def _plant_for_cycle(exp: Experiment, cycle: int) -> Dynamics | None:
     if not exp.config.events:
         return None
     backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
-    return plant_for_cycle(exp.robot.model, exp.config.events, cycle, backend)
+    return plant_for_cycle(_base_plant(exp), exp.config.events, cycle, backend)
+
+
+def _base_plant(exp: Experiment) -> Dynamics:
+    """The simulated world before any event: the ``plant:`` block's, else the known model."""
+    return exp.plant if exp.plant is not None else exp.dynamics
 
 
 def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
@@ -223,4 +229,4 @@ def _plant_at_start(exp: Experiment, start: int) -> Dynamics:
     if not events:
         return exp.dynamics
     backend = "casadi" if exp.config.backend == "casadi" else "pinocchio"
-    return make_dynamics(changed_model(exp.robot.model, events), backend)
+    return world_plant(_base_plant(exp), events, backend)

@@ -66,12 +66,23 @@ class Contact:
         walker: The walker (its model: the robot on its floating base).
         model: Dynamics to use instead of ``walker.model`` (e.g. a changed world with the same
             joints and frames).
+        plant: The simulated plant's joint friction and motor gains (a
+            :class:`feltool.plant.rigid.FrictionPlant`: the stance dynamics then act with
+            ``gain * tau - friction(v)``), or None.
     """
 
-    def __init__(self, walker: WalkerModel, model: pin.Model | None = None):
+    def __init__(self, walker: WalkerModel, model: pin.Model | None = None, plant=None):
         self.walker = walker
         self.model = walker.model if model is None else model
         self.data = self.model.createData()
+        self.plant = plant
+
+    def applied(self, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The generalized force the plant applies for the commanded ``tau`` [N m] at the
+        velocities ``v``: ``tau`` itself, or the plant's ``gain * tau - friction(v)``."""
+        if self.plant is None:
+            return tau
+        return self.plant.motor_gain * tau - self.plant.friction(v)
 
     def jacobian(self, q: np.ndarray, foot: str) -> np.ndarray:
         """``(2, nv)`` Jacobian of a foot's (x, z) in the world."""
@@ -111,10 +122,11 @@ class Contact:
         return np.array([acc[0], acc[2]])
 
     def stance(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, foot: str) -> StanceResult:
-        """Accelerations and the ground force with ``foot`` held on the ground (KKT, Pinocchio)."""
+        """Accelerations and the ground force with ``foot`` held on the ground (KKT, Pinocchio),
+        under the commanded generalized force ``tau`` (:meth:`applied`)."""
         gamma = self.drift(q, v, foot)
         J = self.jacobian(q, foot)
-        a = pin.forwardDynamics(self.model, self.data, q, v, tau, J, gamma)
+        a = pin.forwardDynamics(self.model, self.data, q, v, self.applied(v, tau), J, gamma)
         return StanceResult(np.array(a), np.array(self.data.lambda_c))
 
     def impact(self, q: np.ndarray, v: np.ndarray, foot: str) -> ImpactResult:

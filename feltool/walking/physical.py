@@ -41,140 +41,10 @@ from scipy.optimize import brentq
 from feltool.control.feedback import FeedbackLaw
 from feltool.dynamics.interface import Dynamics
 from feltool.dynamics.pinocchio import mass_matrix
-from feltool.errors import RobotError
-from feltool.walking.checks import ContactChecks, NotWalking, StepStats
+from feltool.walking.checks import NotWalking, StepStats
 from feltool.walking.contact import Contact, StanceResult
-from feltool.walking.model import WalkerModel
-from feltool.walking.pinned import HybridLog, fall_reason
-
-
-class PhysicalWalker:
-    """A walker on a floating base with point feet: its contact, checks, motors and fall check.
-
-    Args:
-        walker: The walker model.
-        checks: The contact checks.
-        steps_per_cycle: Touchdowns per learning cycle.
-        phase: ``clock`` (the RMPs run on time), ``touchdown`` (their phase restarts at every
-            touchdown; a cycle lasts ``steps_per_cycle`` steps) or ``mechanical`` (as touchdown,
-            the phase within a step following the centre of mass's horizontal position over the
-            stance foot, :meth:`PhysicalLoop._mechanical`).
-        fall_row, fall_max: fall when ``|fall_row @ q| > fall_max`` [rad].
-        stance, swing: the feet's names in stance-relative labels.
-    """
-
-    def __init__(self, walker: WalkerModel, checks: ContactChecks, steps_per_cycle: int = 1,
-                 phase: str = "clock", fall_row: np.ndarray | None = None,
-                 fall_max: float = np.inf, stance: str = "left", swing: str = "right"):
-        self.walker, self.checks = walker, checks
-        self.steps_per_cycle, self.phase = steps_per_cycle, phase
-        self.fall_row, self.fall_max = fall_row, fall_max
-        self.stance, self.swing = stance, swing
-        self.contact = Contact(walker)
-        model = walker.model
-        self.base_v = np.array([model.joints[walker.robot.joint_id(n)].idx_v
-                                for n in walker.base])
-        self.base_q = np.array([model.joints[walker.robot.joint_id(n)].idx_q
-                                for n in walker.base])
-        motors = [i for i in range(model.nv) if i not in set(self.base_v)]
-        v_name = {model.joints[j].idx_v: model.names[j] for j in range(1, model.njoints)}
-        self.motor_names = [v_name[i] for i in motors]
-        self.B = np.eye(model.nv)[:, motors]
-        self.motor_v = np.array(motors)
-        J = self.contact.jacobian(pin.neutral(model), stance)
-        if len(self.base_v) < 2 or not np.allclose(J[:, self.base_v[:2]], np.eye(2)):
-            raise RobotError(f"robot '{walker.robot.name}': the walker's first two base joints "
-                             f"({', '.join(walker.base[:2])}) must translate the root along the "
-                             "world's x and z")
-        if checks.effort is None:
-            checks.effort = np.full(len(motors), np.inf)
-
-    def contact_for(self, model: pin.Model) -> Contact:
-        """The contact of a changed world (same joints and frames, e.g. an event's plant)."""
-        if model is self.walker.model:
-            return self.contact
-        return Contact(self.walker, model)
-
-    # -- desired trajectory and allocation --------------------------------------------------------
-    def complete(self, qd: np.ndarray, vd: np.ndarray, ad: np.ndarray,
-                 anchor: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The desired base translation from the stance foot's constraint: the foot at
-        ``anchor`` (x, z) [m] with zero velocity and acceleration, the pitch and joints as given.
-        The first two base coordinates must be the world's x and z (checked at build)."""
-        c = self.contact
-        anchor = np.zeros(2) if anchor is None else anchor
-        qd, vd, ad = qd.copy(), vd.copy(), ad.copy()
-        bx, bz = self.base_v[0], self.base_v[1]
-        # exact in one step: the first two base coordinates translate the root along x and z
-        p, = c.foot_positions(qd, self.stance)
-        qd[self.base_q[0]] += anchor[0] - p[0]
-        qd[self.base_q[1]] += anchor[1] - p[1]
-        J = c.jacobian(qd, self.stance)
-        vd[[bx, bz]] = 0.0
-        vd[[bx, bz]] = -(J @ vd)
-        ad[[bx, bz]] = 0.0
-        ad[[bx, bz]] = -(J @ ad + c.drift(qd, vd, self.stance))
-        return qd, vd, ad
-
-    def labelled(self, qd: np.ndarray, vd: np.ndarray, ad: np.ndarray, label: int
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The RMPs' values in the current labels: with an even ``steps_per_cycle`` the RMPs
-        describe the cycle in its first step's labels (the thesis's gait coordinates), so in
-        every second step (``label`` 1) the legs' values are exchanged."""
-        if label == 0:
-            return qd, vd, ad
-        q2, v2 = self.walker.relabel(qd, vd)
-        _, a2 = self.walker.relabel(qd, ad)
-        return q2, v2, a2
-
-    def chain(self, qd: np.ndarray, label: int) -> np.ndarray:
-        r"""``(nv, nv)`` derivative of the completed desired state by the RMPs' values: the
-        label's permutation, then the base translation that keeps the stance foot in place
-        (:math:`\partial x_b/\partial p = -J_c` for the other coordinates, base columns zero;
-        the same matrix maps velocities and, to first order, accelerations)."""
-        nv = len(qd)
-        G = np.eye(nv)
-        if label:  # the relabelling is linear on velocities: its matrix column by column
-            G = np.stack([self.walker.relabel(qd, e)[1] for e in np.eye(nv)], axis=1)
-        J = self.contact.jacobian(qd, self.stance)
-        T = np.eye(nv)
-        bx, bz = self.base_v[0], self.base_v[1]
-        T[[bx, bz], :] = -J
-        T[:, [bx, bz]] = 0.0
-        return T @ G
-
-    def allocate(self, q: np.ndarray, tau_w: np.ndarray) -> np.ndarray:
-        """Motor torques ``(k,)`` in [N m] for the wanted generalized force ``tau_w``."""
-        return self.allocation_matrix(q) @ tau_w
-
-    def allocation_matrix(self, q: np.ndarray) -> np.ndarray:
-        """``A = (B^T W B)^{-1} B^T W``, ``(k, nv)``: motor torques per wanted generalized
-        force at ``q``."""
-        c = self.contact
-        M = mass_matrix(c.model, c.data, q)
-        J = c.jacobian(q, self.stance)
-        Mi = np.linalg.inv(M)
-        MiJ = Mi @ J.T
-        W = Mi - MiJ @ np.linalg.solve(J @ MiJ, MiJ.T)
-        BW = self.B.T @ W
-        return np.linalg.solve(BW @ self.B, BW)
-
-    def com_x(self, q: np.ndarray, v: np.ndarray, a: np.ndarray | None = None):
-        """The centre of mass's horizontal position over the stance foot in [m] and its rate
-        in [m/s]; with the accelerations ``a`` also its acceleration in [m/s^2] (the stance
-        foot held)."""
-        c = self.contact
-        if a is None:
-            com = pin.centerOfMass(c.model, c.data, q, v)
-        else:
-            com = pin.centerOfMass(c.model, c.data, q, v, a)
-        foot, _ = c.foot_state(q, v, self.stance)
-        out = (float(com[0] - foot[0]), float(c.data.vcom[0][0]))
-        return out if a is None else out + (float(c.data.acom[0][0]),)
-
-    def fallen(self, q: np.ndarray, v: np.ndarray) -> str | None:
-        return fall_reason(q, v, self.fall_row, self.fall_max)
+from feltool.walking.pinned import HybridLog
+from feltool.walking.walker import PhysicalWalker
 
 
 @dataclass
@@ -229,6 +99,12 @@ class PhysicalLoop:
         #: ``(n, k)`` motor torques [N m] added to the command at each control step's RMP
         #: sample (``WalkLog.phase_index``): ILC's learned feedforward, or None
         self.motor_feedforward: np.ndarray | None = None
+        # -- hooks of classic FEL on the walker (feltool.learning.walker_model) --
+        #: ``(qd, vd, ad) -> (nv,)`` generalized forces [N m] added to the known model's
+        #: feedforward (a learned model correction), or None
+        self.model_correction = None
+        #: ``(k,)`` motor torques [N m] added to every command (learned biases), or None
+        self.motor_bias: np.ndarray | None = None
         #: Plant-only disturbances (:class:`feltool.plant.disturbances.WalkerDisturbance`), or None:
         #: the controller and the learner see its measurements, the plant gets its torques
         self.disturbance = None
@@ -256,7 +132,7 @@ class PhysicalLoop:
         """One cycle from ``(q, v)`` (stance foot at the origin) with desired trajectories
         ``P, Pv, Pa`` ``(n, nv)``; ``plant`` is the simulated world."""
         W = self.walker
-        contact = W.contact_for(getattr(plant, "model", W.walker.model))
+        contact = W.contact_for(plant)
         n, nv = P.shape
         clock = W.phase == "clock"  # else touchdown or mechanical: the cycle ends at touchdowns
         n_max = n if clock else 3 * n
@@ -317,8 +193,8 @@ class PhysicalLoop:
                 # has not (yet) produced of the reference's acceleration (PhysicalLoop doc)
                 now = contact.stance(q, v, tau, W.stance)  # (also the first sub-step's start)
                 a = a_phase = now.a
-                if dist is None:
-                    M = mass_matrix(contact.model, contact.data, q)
+                if dist is None:  # the known model's M (the plant's is unknown to the learner)
+                    M = mass_matrix(W.contact.model, W.contact.data, q)
                 else:  # as measured: the known model's M at qm, a measured;
                     M, a = dist.inertia(qm), dist.acceleration(a)  # the phase's: predicted
                 Inert[k] = M @ (ar - a)
@@ -376,7 +252,13 @@ class PhysicalLoop:
         r, rd = self.law.references(qr[None], vr[None])
         terms = self.law.terms(q, v, r[0], rd[0], self.error_rows)
         A = W.allocation_matrix(q)
-        return (qd, vd, ad, ar), r[0], terms, A, A @ (self.known.inverse(qd, vd, ad) + terms[0])
+        tau_w = self.known.inverse(qd, vd, ad) + terms[0]
+        if self.model_correction is not None:
+            tau_w = tau_w + self.model_correction(qd, vd, ad)
+        u = A @ tau_w
+        if self.motor_bias is not None:
+            u = u + self.motor_bias
+        return (qd, vd, ad, ar), r[0], terms, A, u
 
     def _mechanical(self, q, v, P, Pv, Pa, step: int, label: int, ref=None,
                     phase_acc: float = 0.0):
@@ -538,3 +420,6 @@ class PhysicalLoop:
             qn, vn = self._rk4(contact, qn, vn, tau, rest)
             qn, vn = contact.hold(qn, vn, W.stance, np.zeros(2))
         return qn, vn, s
+
+
+__all__ = ["PhysicalLoop", "PhysicalWalker", "WalkLog"]

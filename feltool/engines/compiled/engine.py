@@ -38,7 +38,7 @@ from feltool.engines.compiled.library import (
 from feltool.engines.compiled.support import check_supported
 from feltool.engines.outcome import CycleOutcome
 from feltool.engines.python import hybrid_cycle, limit_cycle_states
-from feltool.plant.events import changed_model
+from feltool.plant.events import world_plant
 
 if TYPE_CHECKING:
     from feltool.experiment.experiment import Experiment
@@ -52,7 +52,7 @@ def _fingerprint(plant) -> bytes:
     m = rigid.model
     parts = [np.asarray(m.gravity.linear, float)]
     parts += [m.inertias[j].toDynamicParameters() for j in range(1, m.njoints)]
-    for key in ("viscous", "coulomb", "coulomb_velocity"):
+    for key in ("viscous", "coulomb", "coulomb_velocity", "motor_gain"):
         if hasattr(plant, key):
             parts.append(np.asarray(getattr(plant, key), float))
     return np.concatenate(parts).tobytes()
@@ -75,15 +75,12 @@ def _cache_key(exp: Experiment, plants: list) -> str:
 
 
 def worlds(exp: Experiment) -> list:
-    """The plants a run meets: ``exp.plant``, then the known model changed by the world events
+    """The plants a run meets: ``exp.plant``, then that plant changed by the world events
     up to each event's cycle (the Python engine's :func:`feltool.plant.events.plant_for_cycle`)."""
-    from feltool.dynamics.interface import make_dynamics
-
     out = [exp.plant if exp.plant is not None else exp.dynamics]
     events = exp.config.events
     for c in sorted({ev.cycle for ev in events if ev.changes_world}):
-        out.append(make_dynamics(changed_model(exp.robot.model,
-                                               [ev for ev in events if ev.cycle <= c])))
+        out.append(world_plant(out[0], [ev for ev in events if ev.cycle <= c]))
     return out
 
 
@@ -126,13 +123,15 @@ class CompiledEngine:
     def _build(self, exp: Experiment, plants: list) -> list:
         """The cycle graphs of every world (CasADi functions, not compiled)."""
         fns = []
+        if self.physical:  # one build for every world: the plant's parameters are inputs
+            from feltool.engines.compiled.physical import physical_cycle_function as build
+
+            plants = plants[:1]
+            fns += [build(exp, None, False, "cycle_0"), build(exp, None, True, "trace_0")]
         for w, plant in enumerate(plants):
             if self.physical:
-                from feltool.engines.compiled.physical import physical_cycle_function as build
-
-                fns += [build(exp, plant, False, f"cycle_{w}"),
-                        build(exp, plant, True, f"trace_{w}")]
-            elif self.walker:
+                continue
+            if self.walker:
                 from feltool.engines.compiled.pinned import walker_cycle_function as build
 
                 fns += [build(exp, plant, False, f"cycle_{w}"),
@@ -209,14 +208,32 @@ class CompiledEngine:
         extra = [] if theta_m is None else [theta_m]
         return np.concatenate([theta[self.exp.learner.learned], *extra, q, v])
 
-    # -- calls ------------------------------------------------------------------------------------
-    def cycle(self, world: int, state: np.ndarray, data: np.ndarray):
-        """``(state', stats)`` of one cycle."""
-        return self._calls[self._n_fns * world](state, data, self.params)
+    def world_params(self, plant) -> np.ndarray:
+        """A physical walker's ``params`` input in the world ``plant``: the experiment's
+        parameters, then the plant's world vector (the known model stands for the experiment's
+        plant, as in :func:`feltool.runs.seed.run_seed`)."""
+        from feltool.engines.compiled.physical_step import world_vector
 
-    def trace(self, world: int, state: np.ndarray, data: np.ndarray):
+        if plant is self.exp.dynamics and self.exp.plant is not None:
+            plant = self.exp.plant
+        key = getattr(self, "_world_key", None)
+        if key is None or key[0] is not plant:
+            self._world_key = (plant, np.concatenate([self.params, world_vector(plant)]))
+        return self._world_key[1]
+
+    # -- calls ------------------------------------------------------------------------------------
+    def cycle(self, world: int, state: np.ndarray, data: np.ndarray,
+              params: np.ndarray | None = None):
+        """``(state', stats)`` of one cycle (``params``: instead of the experiment's, e.g.
+        :meth:`world_params`)."""
+        return self._calls[self._n_fns * world](state, data,
+                                                self.params if params is None else params)
+
+    def trace(self, world: int, state: np.ndarray, data: np.ndarray,
+              params: np.ndarray | None = None):
         """``(state', stats, X, U, Urows, Uerr, Qd)`` of one cycle."""
-        return self._calls[self._n_fns * world + 1](state, data, self.params)
+        return self._calls[self._n_fns * world + 1](state, data,
+                                                    self.params if params is None else params)
 
     def many(self, world: int, state: np.ndarray, data: np.ndarray):
         """``(states, stats)`` of the next :data:`CYCLES_PER_CALL` cycles, one column each."""
@@ -407,16 +424,19 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
     nv, PL, spc = engine.lay.nv, engine.lay.n_learned, exp.hybrid.walker.steps_per_cycle
     k = 4 * nv + len(SCALARS)
 
+    Pm = engine.lay.n_model
+
     def run(theta, q, v, plant, theta_m=None) -> CycleOutcome:
         data = engine.data(theta)
-        state0 = engine.state(theta, q, v)
-        state, stats = engine.cycle(0, state0, data)
+        state0 = engine.state(theta, q, v, theta_m if Pm else None)
+        params = engine.world_params(plant)
+        state, stats = engine.cycle(0, state0, data, params)
         if stats[k] != 0:  # stopped: the Python engine's outcome of this very cycle
-            return hybrid_cycle(exp, theta, q, v, plant)
+            return hybrid_cycle(exp, theta, q, v, plant, theta_m=theta_m)
         m = int(round(stats[k + 1]))
         theta_next = theta.copy()
         theta_next[exp.learner.learned] = state[:PL]
-        x_end = state[PL:]
+        x_end = state[PL + Pm:]
         s = 2 * nv  # the scalars of SCALARS, then the limit hits (joints, motors' torques)
         max_error, max_speed, fb_stab, fb_err, finite = stats[s:s + len(SCALARS)].tolist()
         hits = stats[s + len(SCALARS):k].round().astype(int)
@@ -426,7 +446,7 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         contact["not_walking"] = None
 
         def trace():
-            rows = engine.trace(0, state0, data)[2]
+            rows = engine.trace(0, state0, data, params)[2]
             rw = {n: x[:, :m].T for n, x in unpack(rows, row_fields(nv)).items()}
             return CycleLog(rw["q"], rw["v"], rw["U"], x_end[:nv], x_end[nv:], rw["Urows"],
                             rw["Uerr"]), rw["qd"]
@@ -434,6 +454,7 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         out = CycleOutcome(theta_next, x_end[:nv], x_end[nv:], stats[:nv], stats[nv:2 * nv],
                            max_error, max_speed, finite == 1.0 and np.isfinite(state).all(),
                            trace, fb_stab, fb_err,
+                           theta_m_next=state[PL:PL + Pm].copy() if Pm else theta_m,
                            limit_hits=(hits[:nv], hits[nv:]))
         out.impacts = [(int(round(s)), True, float(length)) for s, length in zip(at, lengths)]
         out.contact = contact

@@ -89,7 +89,8 @@ class Layout:
 def layout(exp) -> Layout:
     model = exp.model_learner
     basis = 0
-    if model is not None and not hasattr(model.features, "corrected_model"):
+    if model is not None and not getattr(model, "walker", False) and \
+            not hasattr(model.features, "corrected_model"):
         basis = model.n_params // exp.robot.model.nv  # phase-basis features
     return Layout(exp.robot.model.nv, max_steps(exp),
                   tuple((i, len(cols)) for i, cols in exp.learner._blocks),
@@ -121,13 +122,15 @@ def masked_step(step: ca.Function) -> ca.Function:
 
 def symbolic_forward(plant):
     """``(q, v, tau) -> a`` of a plant (:class:`~feltool.dynamics.interface.Dynamics`): its model's
-    symbolic ABA, with the joint friction of a :class:`~feltool.plant.rigid.FrictionPlant`."""
+    symbolic ABA, with the joint friction and motor gains of a
+    :class:`~feltool.plant.rigid.FrictionPlant`."""
     rigid = getattr(plant, "rigid", plant)
     aba = symbolic_aba(rigid.model)
     if rigid is plant:
         return lambda q, v, tau: aba(q, v, tau)
-    d, c, vc = (ca.DM(x) for x in (plant.viscous, plant.coulomb, plant.coulomb_velocity))
-    return lambda q, v, tau: aba(q, v, tau - (d * v + c * ca.tanh(v / vc)))
+    d, c, vc, k = (ca.DM(x) for x in (plant.viscous, plant.coulomb, plant.coulomb_velocity,
+                                      plant.motor_gain))
+    return lambda q, v, tau: aba(q, v, k * tau - (d * v + c * ca.tanh(v / vc)))
 
 
 def symbolic_frames(law, model) -> dict:

@@ -81,22 +81,28 @@ class PhysicalGraph:
         PL = self.lay.n_learned
         self.gauss_newton = exp.learner.update == "gauss_newton"
         self.sizes.update(grad=PL, hess=PL * PL if self.gauss_newton else 0)
+        # the model correction's and motor biases' sums (feltool.learning.walker_model)
+        self.n_model = Pm = self.ctl.n_model()
+        self.sizes.update(grad_m=Pm, hess_m=Pm * Pm)
         self.n_state = sum(self.sizes.values())
         self.row_size = sum(sz for _, sz in row_fields(self.nv))
 
     def step_function(self) -> ca.Function:
-        """One control step (MX) ``(S, consts, kp, kd, targets) -> (S', row)``, run only while
-        the cycle runs (the state and an empty row otherwise)."""
+        """One control step (MX) ``(S, consts, kp, kd, targets, srows, w) -> (S', row)``, run
+        only while the cycle runs (the state and an empty row otherwise); ``w`` the plant's
+        world vector (:func:`feltool.engines.compiled.physical_step.world_vector`)."""
         stp, W, nv = self.stp, self.kin.W, self.nv
         S = ca.MX.sym("S", self.n_state)
         consts = ca.MX.sym("consts", self.ctl.consts_size())
         kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
         srows = ca.MX.sym("srows", self.srows_size())
+        w = ca.MX.sym("w", self.kin.n_world)
+        theta_m = ca.MX.sym("theta_m", self.n_model)
         st = unpack(S, self.sizes.items())
         running = ca.logic_and(st["stop"] == 0, st["done"] == 0)
         (tau, u, over, qd, vd, ad, r, U, Urows, Uerr, A, inert, phase_acc_next, jj, label,
          err, a1, F) = self.ctl.function()(st["q"], st["v"], st["phase_acc"], st["n_imp"], consts,
-                                    kp, kd, targets)
+                                    kp, kd, targets, w, theta_m)
         hits = st["hits"] + over
         stop = st["stop"]
         if W.checks.torques == "report":
@@ -111,11 +117,11 @@ class PhysicalGraph:
         branch_fn = self._touchdown_switch(td)
         for i_sub in range(stp.substeps):
             if i_sub:
-                a1, F = self.kin.stance(q, v, tau)
-            q1, v1, checks1, landing, anchor, _ = sub(q, v, tau, h, checks, a1, F)
+                a1, F = self.kin.stance(q, v, tau, w)
+            q1, v1, checks1, landing, anchor, _ = sub(q, v, tau, h, checks, a1, F, w)
             land = ca.logic_and(landing, impact == 0)
             # the touchdown's branch is evaluated only when landing
-            branch = branch_fn(land, q, v, tau, h, anchor, checks, q1, v1, checks1)
+            branch = branch_fn(land, q, v, tau, h, anchor, checks, q1, v1, checks1, w)
             frozen = impact > 0  # after a touchdown the control step ends
             q = ca.if_else(frozen, q, branch[:nv])
             v = ca.if_else(frozen, v, branch[nv:2 * nv])
@@ -139,12 +145,13 @@ class PhysicalGraph:
                                            st["max_imp_ratio"]),
                "energy": st["energy"] + impact * lost, "length": st["length"] + impact * length,
                "hits": hits}
-        new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, Uerr + inert
-                                                  if self.inverse_dynamics else Uerr, jj, srows)
+        E = Uerr + inert if self.inverse_dynamics else Uerr
+        new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, E, jj, srows)
+        new["grad_m"], new["hess_m"] = self._model_sums(st, qd, vd, ad, A, E)
         S_new = ca.vertcat(*[new[name] for name in self.sizes])
         row = ca.vertcat(1, st["q"], st["v"], qd, r, U, Urows, Uerr, err, work, impact,
                          impact * length, tau)  # (row_fields)
-        args = [S, consts, kp, kd, targets, srows]
+        args = [S, consts, kp, kd, targets, srows, w, theta_m]
         body = ca.Function("phys_body", args, [S_new, row])
         idle = ca.Function("phys_idle", args, [S, ca.DM.zeros(self.row_size)])
         switch = ca.Function.conditional("phys_switch", [idle], body)  # 0: idle, else: run
@@ -186,6 +193,24 @@ class PhysicalGraph:
             for l2 in range(L)] for l1 in range(L)]
         return grad, st["hess"] + ca.vec(ca.blockcat(blocks_h))
 
+    def _model_sums(self, st, qd, vd, ad, A, E):
+        r"""The step's terms of the model learner's sums (:mod:`feltool.learning.walker_model`)
+        added to the state's: with :math:`\Phi = [A Y, I]` and :math:`e_m = A e`,
+        ``grad_m += Phi^T e_m``, ``hess_m += Phi^T Phi``."""
+        if not self.n_model:
+            return st["grad_m"], st["hess_m"]
+        kin, k = self.kin, self.k
+        Am = ca.reshape(A, k, self.nv)
+        cols = []
+        if kin.n_pi:
+            cols.append(ca.mtimes(Am, kin.regressor(qd, vd, ad)))
+        if self.n_model > kin.n_pi:
+            cols.append(ca.DM.eye(k))
+        Phi = ca.horzcat(*cols)
+        em = ca.mtimes(Am, E)
+        return (st["grad_m"] + ca.mtimes(Phi.T, em),
+                st["hess_m"] + ca.vec(ca.mtimes(Phi.T, Phi)))
+
     def _touchdown_switch(self, td: ca.Function) -> ca.Function:
         """``(land, q, v, tau, h, anchor, checks, q1, v1, checks1) -> branch``: the
         touchdown's state, checks, impulse ratio, energy lost and step length when ``land``,
@@ -193,10 +218,11 @@ class PhysicalGraph:
         nv = self.nv
         args = [ca.MX.sym(n, sz) for n, sz in (("q", nv), ("v", nv), ("tau", nv), ("h", 1),
                                                ("anchor", 2), ("checks", 4), ("q1", nv),
-                                               ("v1", nv), ("checks1", 4))]
-        q, v, tau, h, anchor, checks, q1, v1, checks1 = args
+                                               ("v1", nv), ("checks1", 4),
+                                               ("w", self.kin.n_world))]
+        q, v, tau, h, anchor, checks, q1, v1, checks1, w = args
         no = ca.Function("no_touchdown", args, [ca.vertcat(q1, v1, checks1, -np.inf, 0, 0)])
-        qn, vn, checks_td, ratio, lost, length = td(q, v, tau, h, anchor, checks1)
+        qn, vn, checks_td, ratio, lost, length = td(q, v, tau, h, anchor, checks1, w)
         yes = ca.Function("touchdown_branch", args,
                           [ca.vertcat(qn, vn, checks_td, ratio, lost, length)])
         switch = ca.Function.conditional("touchdown_switch", [no], yes)
@@ -211,7 +237,9 @@ class PhysicalGraph:
         consts = ca.MX.sym("consts", self.ctl.consts_size())
         kp, kd, targets = (ca.MX.sym(s, self.nv) for s in ("kp", "kd", "targets"))
         srows = ca.MX.sym("srows", self.srows_size())
-        args = [consts, kp, kd, targets, srows]
+        w = ca.MX.sym("w", self.kin.n_world)
+        theta_m = ca.MX.sym("theta_m", self.n_model)
+        args = [consts, kp, kd, targets, srows, w, theta_m]
         s, rows = S, []
         for _ in range(BLOCK):
             s, row = one(s, *args)
@@ -234,7 +262,9 @@ CONTACT = ("min_normal_force", "max_friction_ratio", "min_clearance", "max_impul
 def physical_cycle_function(exp, plant=None, full: bool = False,
                             name: str = "phys_cycle") -> ca.Function:
     """The physical walker's cycle ``(state, data, params) -> (state', stats)`` (the arm's
-    data with the referenced joints' samples appended); ``stats``: the arm's, then the stop
+    data with the referenced joints' samples appended; the params with the simulated world's
+    vector appended, :func:`~feltool.engines.compiled.physical_step.world_vector`: one build
+    runs every world of the walker's joints, ``plant`` is not used); ``stats``: the arm's, then the stop
     code, the steps run, the touchdowns' steps and lengths, and :data:`CONTACT`. With
     ``full``: the rows of every step (:func:`row_fields`)."""
     g = PhysicalGraph(exp)
@@ -245,9 +275,11 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     refs = stp.refs
     state = ca.MX.sym("state", lay.n_state)
     data = ca.MX.sym("data", lay.n_data + 3 * n * len(refs))
-    params = ca.MX.sym("params", lay.n_params)
-    theta, x0 = state[:PL], state[PL:]
-    kp, kd, targets, rates, damping = split_params(lay, params)[:5]
+    params = ca.MX.sym("params", lay.n_params + kin.n_world)  # the world vector last
+    Pm = g.n_model
+    theta, theta_m, x0 = state[:PL], state[PL:PL + Pm], state[PL + Pm:]
+    kp, kd, targets, rates, damping = split_params(lay, params[:lay.n_params])[:5]
+    world = params[lay.n_params:]
     sens, (P, Pv, Pa), _, _ = desired_from_data(lay, theta, data)
     R = [P, Pv, Pa]
     for j, i in enumerate(refs):  # a referenced joint's feedback and phase follow samples
@@ -273,7 +305,8 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
                     ca.DM.zeros(g.sizes["hess"]))
     srows = ca.vertcat(*[ca.vec(sens[l][c].T) for l in range(L) for c in range(3)]) if L \
         else ca.MX.zeros(0)
-    S, rows = g.steps_function()(S0, consts, kp, kd, targets, srows)
+    S0 = ca.vertcat(S0, ca.DM.zeros(Pm + Pm * Pm))
+    S, rows = g.steps_function()(S0, consts, kp, kd, targets, srows, world, theta_m)
     st, rw = unpack(S, g.sizes.items()), unpack(rows, row_fields(nv))
     ended = st["n_imp"] >= spc
     stop = ca.if_else(ca.logic_and(st["stop"] == 0, 1 - ended), stop_code("touchdown"), st["stop"])
@@ -319,7 +352,16 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
                ca.if_else(n_steps > 0, st["length"] / n_steps, nan), st["length"], n_steps,
                m * stp.dt, ca.sum2(rw["work"]), stab_rms]
     stats += [stop, m, *steps_at, *lengths, *contact]
-    outs = [ca.vertcat(theta_next, st["q"], st["v"]), ca.vertcat(*stats)]
+    theta_m_next = theta_m
+    if Pm:  # the model correction's and biases' Levenberg-Marquardt step
+        H = ca.reshape(st["hess_m"], Pm, Pm)
+        lam = split_params(lay, params[:lay.n_params])[6] * ca.sum1(ca.diag(H)) / Pm + 1e-300
+        delta = ca.solve(H + lam * ca.DM.eye(Pm), st["grad_m"])
+        ml = exp.model_learner
+        rates = ca.vertcat(ca.repmat(split_params(lay, params[:lay.n_params])[5], ml.n_pi, 1),
+                           ca.DM.ones(ml.n_bias) * ml.bias_rate)
+        theta_m_next = ca.if_else(stop == 0, theta_m + rates * delta, theta_m)
+    outs = [ca.vertcat(theta_next, theta_m_next, st["q"], st["v"]), ca.vertcat(*stats)]
     names = ["state_next", "stats"]
     if full:
         outs.append(rows)

@@ -13,6 +13,8 @@ from feltool.dynamics.symbolic import (
     symbolic_center_of_mass,
     symbolic_frame_kinematics,
     symbolic_rnea,
+    symbolic_rnea_parametric,
+    symbolic_rnea_world,
 )
 from feltool.engines.compiled.graph import (
     controlled_error,
@@ -28,8 +30,32 @@ STOP_CODES = ("", "normal_force", "friction", "clearance", "touchdown", "impulse
               "torque", "phase", "fall")
 
 
+def world_size(model) -> int:
+    """The size of a world vector (:func:`world_vector`) of ``model``'s joints."""
+    return 10 * (model.njoints - 1) + 3 + 4 * model.nv
+
+
+def world_vector(plant) -> np.ndarray:
+    """The simulated world as the compiled walker's input: the plant's inertial parameters (10
+    per body, Pinocchio's order), its linear gravity (3) [m/s^2], and per joint its viscous
+    damping [N m s/rad], Coulomb level [N m], Coulomb velocity [rad/s] and motor gain [-]
+    (:class:`feltool.plant.rigid.FrictionPlant`; none and 1 for a rigid plant)."""
+    rigid = getattr(plant, "rigid", plant)
+    m = rigid.model
+    pi = [m.inertias[j].toDynamicParameters() for j in range(1, m.njoints)]
+    if rigid is plant:
+        extra = [np.zeros(m.nv), np.zeros(m.nv), np.ones(m.nv), np.ones(m.nv)]
+    else:
+        extra = [np.asarray(x, float) for x in (plant.viscous, plant.coulomb,
+                                                 plant.coulomb_velocity, plant.motor_gain)]
+    return np.concatenate(pi + [np.asarray(m.gravity.linear, float)] + extra)
+
+
 class Kin:
-    """The walker's symbolic kinematics and dynamics (SX functions of one model)."""
+    """The walker's symbolic kinematics and dynamics (SX functions of one model): the known
+    model's (feedforward, allocation, mechanical phase, feet) and the simulated plant's, whose
+    parameters are the input ``w`` (:func:`world_vector`): its stance dynamics, impacts,
+    energy, Runge-Kutta step and the stance foot's hold."""
 
     def __init__(self, exp):
         loop = exp.hybrid
@@ -45,7 +71,25 @@ class Kin:
         M = ca.jacobian(rnea(q, v, a), a)
         self.M = ca.Function("M", [q], [ca.substitute(M, ca.vertcat(v, a),
                                                       ca.DM.zeros(2 * nv))])
-        self.b = ca.Function("b", [q, v], [rnea(q, v, ca.DM.zeros(nv))])
+        # the model correction's regressor (learning.model): Y = d RNEA / d pi, its columns
+        learner = exp.model_learner
+        self.n_pi = learner.n_pi if getattr(learner, "walker", False) else 0
+        if self.n_pi:
+            pi_s = ca.SX.sym("pi", 10 * (model.njoints - 1))
+            Y = ca.jacobian(symbolic_rnea_parametric(model)(q, v, a, pi_s), pi_s)
+            Y = ca.substitute(Y, pi_s, ca.DM.zeros(pi_s.shape[0]))[:, list(learner.columns)]
+            self.regressor = ca.Function("regressor", [q, v, a], [ca.densify(Y)])
+        # the plant: RNEA of the world's parameters
+        self.n_world = world_size(model)
+        w = ca.SX.sym("w", self.n_world)
+        npi = 10 * (model.njoints - 1)
+        pi, g = w[:npi], w[npi:npi + 3]
+        visc, coul, vc, gain = (w[npi + 3 + c * nv:npi + 3 + (c + 1) * nv] for c in range(4))
+        rnea_w = symbolic_rnea_world(model)
+        Mw = ca.jacobian(rnea_w(q, v, a, pi, g), a)
+        Mq = ca.substitute(Mw, ca.vertcat(v, a), ca.DM.zeros(2 * nv))
+        bq = rnea_w(q, v, ca.DM.zeros(nv), pi, g)
+        applied = gain * tau - (visc * v + coul * ca.tanh(v / vc))
         self.feet = {}
         for name in (W.stance, W.swing):
             fk = symbolic_frame_kinematics(model, W.walker.feet[name])
@@ -60,19 +104,18 @@ class Kin:
         Rq, Rv = W.walker.relabel_matrices()
         self.Rq, self.Rv = ca.DM(Rq), ca.DM(Rv)
         self.B = ca.DM(W.B)
-        # the stance dynamics (KKT) and the rigid impact, each one linear solve
-        Mq, bq = self.M(q), self.b(q, v)
+        # the plant's stance dynamics (KKT) and rigid impact, each one linear solve
         _, Js, _, gam = self.feet[W.stance](q, v)
         K = ca.blockcat([[Mq, -Js.T], [Js, ca.DM.zeros(2, 2)]])
-        sol = ca.solve(K, ca.vertcat(tau - bq, -gam))
-        self.stance = ca.Function("stance", [q, v, tau], [sol[:nv], sol[nv:]])
+        sol = ca.solve(K, ca.vertcat(applied - bq, -gam))
+        self.stance = ca.Function("stance", [q, v, tau, w], [sol[:nv], sol[nv:]])
         self.impacts = {}
         for name in (W.stance, W.swing):
             _, Jf, _, _ = self.feet[name](q, v)
             Ki = ca.blockcat([[Mq, -Jf.T], [Jf, ca.DM.zeros(2, 2)]])
             si = ca.solve(Ki, ca.vertcat(ca.mtimes(Mq, v), ca.DM.zeros(2)))
-            self.impacts[name] = ca.Function(f"impact_{name}", [q, v], [si[:nv], si[nv:]])
-        self.energy = ca.Function("energy", [q, v], [0.5 * ca.dot(v, ca.mtimes(Mq, v))])
+            self.impacts[name] = ca.Function(f"impact_{name}", [q, v, w], [si[:nv], si[nv:]])
+        self.energy = ca.Function("energy", [q, v, w], [0.5 * ca.dot(v, ca.mtimes(Mq, v))])
         self.rk4 = self._rk4()
         self.hold = {name: self._hold(name) for name in (W.stance, W.swing)}
 
@@ -81,8 +124,8 @@ class Kin:
         v1)``, ``a1`` the stance acceleration at ``(q, v)`` (its caller has it already)."""
         nv = self.nv
         q, v, tau, a1 = (ca.SX.sym(s, nv) for s in ("q", "v", "tau", "a1"))
-        h = ca.SX.sym("h")
-        f = lambda qq, vv: self.stance(qq, vv, tau)[0]  # noqa: E731
+        h, w = ca.SX.sym("h"), ca.SX.sym("w", self.n_world)
+        f = lambda qq, vv: self.stance(qq, vv, tau, w)[0]  # noqa: E731
         q2, v2 = q + 0.5 * h * v, v + 0.5 * h * a1
         a2 = f(q2, v2)
         q3, v3 = q + 0.5 * h * v2, v + 0.5 * h * a2
@@ -91,7 +134,7 @@ class Kin:
         a4 = f(q4, v4)
         q1 = q + h / 6.0 * (v + 2 * v2 + 2 * v3 + v4)
         v1 = v + h / 6.0 * (a1 + 2 * a2 + 2 * a3 + a4)
-        return ca.Function("rk4", [q, v, tau, h, a1], [q1, v1])
+        return ca.Function("rk4", [q, v, tau, h, a1, w], [q1, v1])
 
     def _hold(self, foot: str) -> ca.Function:
         """:meth:`feltool.walking.contact.Contact.hold`: two Gauss-Newton steps on the foot's position
@@ -99,6 +142,7 @@ class Kin:
         velocity (if the foot moves by 1e-13 m/s or more)."""
         nv = self.nv
         q0, v, anchor = ca.SX.sym("q", nv), ca.SX.sym("v", nv), ca.SX.sym("anchor", 2)
+        w = ca.SX.sym("w", self.n_world)
         fk, q = self.feet[foot], q0
         done = ca.SX(0)
         for _ in range(2):
@@ -111,8 +155,9 @@ class Kin:
             done = ca.logic_or(done, 1 - off)
         _, J, dp, _ = fk(q, v)
         moving = ca.fmax(ca.fabs(dp[0]), ca.fabs(dp[1])) > 1e-13
-        v_plus = self.impacts[foot](q, v)[0]
-        return ca.Function(f"hold_{foot}", [q0, v, anchor], [q, ca.if_else(moving, v_plus, v)])
+        v_plus = self.impacts[foot](q, v, w)[0]
+        return ca.Function(f"hold_{foot}", [q0, v, anchor, w],
+                           [q, ca.if_else(moving, v_plus, v)])
 
     def complete(self, qd, vd, ad):
         """:meth:`feltool.walking.physical.PhysicalWalker.complete` with the anchor at the origin."""
@@ -186,8 +231,8 @@ class Step:
                 "length": 1, "hits": k}
 
     def substep(self) -> ca.Function:
-        """One sub-step without a touchdown's branch: ``(q, v, tau, h, st, a1, F) -> (q1, v1,
-        st, landing, anchor, z0)`` with the contact checks (``st``: stop, min_fn, max_ratio,
+        """One sub-step without a touchdown's branch: ``(q, v, tau, h, st, a1, F, w) -> (q1,
+        v1, st, landing, anchor, z0)`` with the contact checks (``st``: stop, min_fn, max_ratio,
         min_clear); ``a1, F``: the stance dynamics at ``(q, v, tau)`` (the control step's for
         its first sub-step)."""
         kin, W = self.kin, self.kin.W
@@ -195,6 +240,7 @@ class Step:
         nv = self.nv
         q, v, tau, a1 = (ca.MX.sym(s, nv) for s in ("q", "v", "tau", "a1"))
         h, st, F = ca.MX.sym("h"), ca.MX.sym("st", 4), ca.MX.sym("F", 2)
+        w = ca.MX.sym("w", kin.n_world)
         stop, min_fn, max_ratio, min_clear = st[0], st[1], st[2], st[3]
         Fx, Fz = F[0], F[1]
         min_fn = ca.fmin(min_fn, Fz)
@@ -205,8 +251,8 @@ class Step:
         stop = ca.if_else(ca.logic_and(stop == 0, ratio > chk.friction), stop_code("friction"), stop)
         anchor = kin.feet[W.stance](q, v)[0]
         z0 = kin.feet[W.swing](q, v)[0][1]
-        q1, v1 = kin.rk4(q, v, tau, h, a1)
-        q1, v1 = kin.hold[W.stance](q1, v1, anchor)
+        q1, v1 = kin.rk4(q, v, tau, h, a1, w)
+        q1, v1 = kin.hold[W.stance](q1, v1, anchor, w)
         sp = kin.feet[W.swing](q1, v1)[0]
         ahead = sp[0] - anchor[0]
         exempt = ca.fabs(ahead) < chk.scuff_exempt
@@ -218,36 +264,37 @@ class Step:
         min_clear = ca.if_else(count, ca.fmin(min_clear, sp[1]), min_clear)
         stop = ca.if_else(ca.logic_and(ca.logic_and(stop == 0, count), sp[1] < -chk.clearance_tol),
                           stop_code("clearance"), stop)
-        return ca.Function("substep", [q, v, tau, h, st, a1, F],
+        return ca.Function("substep", [q, v, tau, h, st, a1, F, w],
                            [q1, v1, ca.vertcat(stop, min_fn, max_ratio, min_clear), landing,
                             anchor, z0])
 
     def touchdown(self) -> ca.Function:
-        """The touchdown inside a sub-step (MX): ``(q, v, tau, h, anchor, st) -> (qn, vn, st,
+        """The touchdown inside a sub-step (MX): ``(q, v, tau, h, anchor, st, w) -> (qn, vn, st,
         impulse_ratio, energy_lost, length)``; the bisection calls the Runge-Kutta step."""
         kin, W = self.kin, self.kin.W
         chk = W.checks
         nv = self.nv
         q, v, tau = (ca.MX.sym(s, nv) for s in ("q", "v", "tau"))
         h, anchor, st = ca.MX.sym("h"), ca.MX.sym("anchor", 2), ca.MX.sym("st", 4)
+        w = ca.MX.sym("w", kin.n_world)
         qs_, vs_ = ca.SX.sym("q", nv), ca.SX.sym("v", nv)
         height = ca.Function("height", [qs_, vs_], [kin.feet[W.swing](qs_, vs_)[0][1]])
         lo, hi = ca.MX(0), h
-        a1 = kin.stance(q, v, tau)[0]  # every bisection starts from (q, v)
+        a1 = kin.stance(q, v, tau, w)[0]  # every bisection starts from (q, v)
         for _ in range(BISECTIONS):
             mid = 0.5 * (lo + hi)
-            qm, vm = kin.rk4(q, v, tau, mid, a1)
+            qm, vm = kin.rk4(q, v, tau, mid, a1, w)
             above = height(qm, vm) > 0
             lo, hi = ca.if_else(above, mid, lo), ca.if_else(above, hi, mid)
         s = 0.5 * (lo + hi)
-        qs, vs = kin.rk4(q, v, tau, s, a1)
-        qs, vs = kin.hold[W.stance](qs, vs, anchor)
+        qs, vs = kin.rk4(q, v, tau, s, a1, w)
+        qs, vs = kin.hold[W.stance](qs, vs, anchor, w)
         p, _, dp, _ = kin.feet[W.swing](qs, vs)
         stop, min_fn, max_ratio, min_clear = st[0], st[1], st[2], st[3]
         min_clear = ca.fmin(min_clear, ca.fmax(p[1], 0.0))
         stop = ca.if_else(ca.logic_and(stop == 0, dp[1] >= 0.0), stop_code("touchdown"), stop)
-        v_plus, I = kin.impacts[W.swing](qs, vs)
-        lost = kin.energy(qs, vs) - kin.energy(qs, v_plus)
+        v_plus, I = kin.impacts[W.swing](qs, vs, w)
+        lost = kin.energy(qs, vs, w) - kin.energy(qs, v_plus, w)
         ratio = ca.if_else(I[1] > 0, ca.fabs(I[0]) / I[1], np.inf)
         length = p[0] - anchor[0]
         trail_vz = kin.feet[W.stance](qs, v_plus)[2][1]
@@ -255,9 +302,9 @@ class Step:
         stop = ca.if_else(ca.logic_and(stop == 0, ratio > chk.friction), stop_code("impulse"), stop)
         stop = ca.if_else(ca.logic_and(stop == 0, trail_vz < -1e-9), stop_code("lift_off"), stop)
         qn, vn = ca.mtimes(kin.Rq, qs), ca.mtimes(kin.Rv, v_plus)
-        qn, vn = kin.hold[W.stance](qn, vn, ca.vertcat(p[0], 0.0))
+        qn, vn = kin.hold[W.stance](qn, vn, ca.vertcat(p[0], 0.0), w)
         qn = qn - p[0] * ca.DM([1.0 if i == kin.bq0 else 0.0 for i in range(nv)])
-        return ca.Function("touchdown", [q, v, tau, h, anchor, st],
+        return ca.Function("touchdown", [q, v, tau, h, anchor, st, w],
                            [qn, vn, ca.vertcat(stop, min_fn, max_ratio, min_clear), ratio, lost,
                             length])
 
@@ -292,6 +339,11 @@ class Control:
     def consts_size(self) -> int:
         return 6 * self.st.nv * self.st.n + 3 * self.st.n
 
+    def n_model(self) -> int:
+        """The physical walker's model correction and motor biases (``learning.model``)."""
+        learner = self.exp.model_learner
+        return learner.n_params if getattr(learner, "walker", False) else 0
+
     def function(self) -> ca.Function:
         exp, kin, stp = self.exp, self.kin, self.st
         W, law, loop = kin.W, exp.law, exp.hybrid
@@ -302,6 +354,8 @@ class Control:
         phase_acc, n_imp = ca.MX.sym("phase_acc"), ca.MX.sym("n_imp")
         consts = ca.MX.sym("consts", self.consts_size())
         kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
+        w = ca.MX.sym("w", kin.n_world)
+        theta_m = ca.MX.sym("theta_m", self.n_model())
         arrays = [ca.reshape(consts[c * nv * n:(c + 1) * nv * n], nv, n) for c in range(6)]
         P, Pv, Pa, R, Rv, Ra = arrays
         grid = [consts[6 * nv * n + c * n:6 * nv * n + (c + 1) * n] for c in range(3)]
@@ -333,7 +387,12 @@ class Control:
         u_fb, u_rows, u_err = feedback(CASADI, sym_law, q, v, r, rd, loop.error_rows)
         Mq = kin.M(q)
         A = kin.allocation(q, Mq)
-        u = ca.mtimes(A, kin.rnea(qd, vd, ad) + u_fb)
+        tau_w = kin.rnea(qd, vd, ad) + u_fb
+        if kin.n_pi:  # the learned model correction Y theta_pi (feltool.learning.walker_model)
+            tau_w = tau_w + ca.mtimes(kin.regressor(qd, vd, ad), theta_m[:kin.n_pi])
+        u = ca.mtimes(A, tau_w)
+        if self.n_model() > kin.n_pi:  # the learned motor biases
+            u = u + theta_m[kin.n_pi:]
         effort = ca.DM(np.where(np.isfinite(W.checks.effort), W.checks.effort, 1e300))
         over = ca.fabs(u) > effort
         if W.checks.torques == "saturate":
@@ -341,13 +400,14 @@ class Control:
         if W.checks.torques == "ignore":
             over = ca.MX.zeros(k)
         tau = ca.mtimes(kin.B, u)
-        a_now, F_now = kin.stance(q, v, tau)  # (also the first sub-step's start)
+        a_now, F_now = kin.stance(q, v, tau, w)  # the plant's (also the first sub-step's start)
         inert = ca.mtimes(Mq, ar - a_now)
         xc_acc = kin.com_x(q, v, a_now)[2]
         phase_acc_next = ca.if_else(x_rate > 1e-9, (xc_acc - xa_f * rate**2) / x_rate, 0.0)
         # the metric's largest error: forward (not reference) desired against the system
         err = controlled_error(law, symbolic_reference(law, qd, vd, targets)[0], q)
-        return ca.Function("control", [q, v, phase_acc, n_imp, consts, kp, kd, targets],
+        return ca.Function("control", [q, v, phase_acc, n_imp, consts, kp, kd, targets, w,
+                                       theta_m],
                            [tau, u, over, qd, vd, ad, r, u_fb, u_rows, u_err, ca.vec(A), inert,
                             phase_acc_next, jj, label, err, a_now, F_now])
 

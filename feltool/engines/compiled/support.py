@@ -65,9 +65,6 @@ def unsupported_physical(exp) -> list[tuple[str, str]]:
     if exp.law.frames:
         out.append(("joints", "frame-angle targets on a physical walker run in the Python "
                               "engine only"))
-    if any(ev.changes_world for ev in cfg.events):
-        out.append(("events", "a physical walker's changed world runs in the Python engine "
-                              "only"))
     if cfg.learning.update == "gauss_newton" and cfg.learning.error_space != "motors":
         out.append(("learning.error_space", "Gauss-Newton in joint torques on a physical "
                                             "walker runs in the Python engine only"))
