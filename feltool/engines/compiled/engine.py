@@ -221,23 +221,27 @@ class CompiledEngine:
             self._world_key = (plant, np.concatenate([self.params, world_vector(plant)]))
         return self._world_key[1]
 
+    def _params(self, params: np.ndarray | None) -> np.ndarray:
+        """``params``, or the experiment's own (a physical walker's: in the experiment's plant)."""
+        if params is not None:
+            return params
+        return self.world_params(self.exp.dynamics) if self.physical else self.params
+
     # -- calls ------------------------------------------------------------------------------------
     def cycle(self, world: int, state: np.ndarray, data: np.ndarray,
               params: np.ndarray | None = None):
         """``(state', stats)`` of one cycle (``params``: instead of the experiment's, e.g.
         :meth:`world_params`)."""
-        return self._calls[self._n_fns * world](state, data,
-                                                self.params if params is None else params)
+        return self._calls[self._n_fns * world](state, data, self._params(params))
 
     def trace(self, world: int, state: np.ndarray, data: np.ndarray,
               params: np.ndarray | None = None):
         """``(state', stats, X, U, Urows, Uerr, Qd)`` of one cycle."""
-        return self._calls[self._n_fns * world + 1](state, data,
-                                                    self.params if params is None else params)
+        return self._calls[self._n_fns * world + 1](state, data, self._params(params))
 
     def many(self, world: int, state: np.ndarray, data: np.ndarray):
         """``(states, stats)`` of the next :data:`CYCLES_PER_CALL` cycles, one column each."""
-        states, stats = self._calls[self._n_fns * world + 2](state, data, self.params)
+        states, stats = self._calls[self._n_fns * world + 2](state, data, self._params(None))
         return (states.reshape(-1, CYCLES_PER_CALL, order="F"),
                 stats.reshape(-1, CYCLES_PER_CALL, order="F"))
 
