@@ -121,7 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write", type=Path, default=None, help="markdown file to put the table in")
     ap.add_argument("--cache", type=Path, default=ROOT / "runs" / "invariance.json")
     ap.add_argument("--points", default=None, help="run only the points whose label contains "
-                    "one of these comma-separated strings (the table shows every cached point)")
+                    "one of these comma-separated strings, the corner only with 'corner' (the table "
+                    "shows every cached point)")
     args = ap.parse_args(argv)
     a, _, b = args.seeds.partition("-")
     seeds = list(range(int(a), int(b or a) + 1))
@@ -133,8 +134,10 @@ def main(argv: list[str] | None = None) -> int:
             key = results.setdefault(config, {})
             if label in key and key[label].get("seeds", len(seeds)) == len(seeds):
                 continue
-            if args.points and label != "shipped" and \
-                    not any(p in label for p in args.points.split(",")):
+            wanted = args.points.split(",") if args.points else []
+            if wanted and label != "shipped" and not (
+                    "corner" in wanted if label.startswith("corner") else
+                    any(p in label for p in wanted)):
                 continue
             key[label] = run_point(config, over, seeds)
             args.cache.write_text(json.dumps(results, indent=1))
