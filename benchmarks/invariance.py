@@ -11,7 +11,8 @@ for 150 cycles with the shipped rates and nothing else changed (compiled engine)
 per point: seeds converged (below 5 % of the first cycle's error feedback for good), diverged,
 the mean cycles-to-5 % and its ratio to the shipped config's (the acceptance: 20/20 within
 x1.5), and the safeguard's rejected steps. A setting the config checks refuse (e.g. a control
-rate too coarse for the gains, feltool.experiment.checks) is reported as refused, with the
+rate too coarse for the gains: what ``feltool check`` refuses, feltool.experiment.checks) is
+reported as refused, with the
 reason's first words. ``--write`` puts the table into the file between the markers
 ``<!-- invariance:start -->`` and ``<!-- invariance:end -->``. Results are cached per point in
 ``--cache`` (a JSON file), so an interrupted grid continues where it stopped.
@@ -28,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from feltool.errors import FeltoolError
+from feltool.experiment.checks import experiment_problems
 from feltool.runs.experiments import load_experiment
 from feltool.runs.seed import run_seed
 
@@ -57,6 +59,9 @@ def run_point(config: str, over: dict, seeds: list[int]) -> dict:
         exp = load_experiment(ROOT / "configs" / f"{config}.yaml", sets)
     except FeltoolError as err:
         return {"refused": str(err).splitlines()[0][:160]}
+    problems = experiment_problems(exp)  # what `feltool check` refuses
+    if problems:
+        return {"refused": f"{problems[0][0]}: {problems[0][1]}"[:160]}
     t0 = time.perf_counter()
     conv, div, rejected, reasons = [], 0, [], []
     for seed in seeds:
@@ -115,6 +120,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--configs", default=",".join(CONFIGS))
     ap.add_argument("--write", type=Path, default=None, help="markdown file to put the table in")
     ap.add_argument("--cache", type=Path, default=ROOT / "runs" / "invariance.json")
+    ap.add_argument("--points", default=None, help="run only the points whose label contains "
+                    "one of these comma-separated strings, the corner only with 'corner' (the table "
+                    "shows every cached point)")
     args = ap.parse_args(argv)
     a, _, b = args.seeds.partition("-")
     seeds = list(range(int(a), int(b or a) + 1))
@@ -125,6 +133,11 @@ def main(argv: list[str] | None = None) -> int:
         for label, over in points(config):
             key = results.setdefault(config, {})
             if label in key and key[label].get("seeds", len(seeds)) == len(seeds):
+                continue
+            wanted = args.points.split(",") if args.points else []
+            if wanted and label != "shipped" and not (
+                    "corner" in wanted if label.startswith("corner") else
+                    any(p in label for p in wanted)):
                 continue
             key[label] = run_point(config, over, seeds)
             args.cache.write_text(json.dumps(results, indent=1))

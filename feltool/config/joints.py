@@ -79,6 +79,11 @@ class LearnConfig(Strict):
                                       f"{MAX_WEIGHT_SCALE:g}.")
     goal_spread: NonNegFloat = Field(0.3, le=MAX_ANGLE, description="Random initial goal uniform "
                                      f"in goal_center +- goal_spread, in [rad]; at most {MAX_ANGLE:g}.")
+    init_basis: int | None = Field(None, ge=1, le=1000, description="init random: the basis "
+        "size the random weights are drawn on (and weight_scale's demo fit is made with); the "
+        "start is that RMP's forward trajectory fitted into the joint's own basis, so that "
+        "changing primitives.basis changes the basis only, not the task (the start's "
+        "trajectory); default the joint's own basis size (a draw per basis function).")
     rate_scale: PositiveFloat = Field(1.0, le=1e6, description="Multiplies learning.rates for "
         "this joint's weights and goal [-] (e.g. a tracked leg learned more slowly than the "
         "torso it carries); at most 1e6.")

@@ -191,12 +191,11 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
     fixed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     referenced: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     fit_rms: dict[str, float] = {}
+    demo_fits: dict[int, tuple] = {}  # eq. 2.4 of each demo in any basis (learn.init_basis)
     src = str(source) if source else None
     for i, name in enumerate(joints):
         jc = cfg.joints[name]
-        settings = cfg.primitives.model_dump()
-        if jc.primitive is not None:
-            settings.update({k: v for k, v in jc.primitive.model_dump().items() if v is not None})
+        settings = _settings(cfg, jc)
         prim = RhythmicPrimitive(settings["basis"], T, dt, settings["alpha_z"], settings["beta_z"],
                                  settings["width"], settings["amplitude"])
         prims[i] = prim
@@ -204,11 +203,11 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
             d = jc.demo
             series = positions_series(d, source, f"joints.{name}.demo", src)
             q, v, a = demo_trajectory(d, T, fine_t, series)
-            if series is not None:  # positions only: eq. 2.4 over the series' coefficients
-                thetas[i] = prim.fit_series(series)
-            else:
-                goal = float(np.mean(q)) if d.kind == "samples" else d.mean
-                thetas[i] = prim.fit(q, v, a, 2.0 * np.pi * fine_t / T, goal=goal)
+            demo_fit = _demo_fitter(q, v, a, series, 2.0 * np.pi * fine_t / T,
+                                    float(np.mean(q)) if d.kind == "samples" else d.mean)
+            thetas[i] = demo_fit(prim)
+            if not (jc.follow_demo and jc.learn is not None):  # as the w_ref below
+                demo_fits[i] = (demo_fit, settings)
             if not jc.follow_demo:
                 fit_rms[name] = prim.fit_rms(thetas[i], q, 2.0 * np.pi * fine_t / T)
             if jc.follow_demo and jc.learn is None:
@@ -265,7 +264,7 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
                           str(source) if source else None)
 
     # Learner.
-    learned, is_goal, rates, init = [], [], [], []
+    learned, is_goal, rates, init, init_reference = [], [], [], [], {}
     demo_w = [np.abs(thetas[i][:-1]).max() for i, n in enumerate(joints)
               if cfg.joints[n].demo is not None]
     w_ref = max(demo_w) if demo_w else 1.0
@@ -289,8 +288,17 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
         rates += [scale * w_rate] * (len(idx) - 1) + [scale * g_rate]
         center = jc.learn.goal_center if jc.learn.goal_center is not None else (
             float(centers[i]) if stabilizing[i] else float(goals[i]))
+        w_scale = w_ref
+        nb = jc.learn.init_basis
+        if jc.learn.init == "random" and nb is not None and nb != prim.n_basis:
+            # the draw on nb basis functions (the joint's settings otherwise, the default
+            # width of nb unless one is set), and weight_scale relative to the demos' fits there
+            init_reference[sl.start] = _with_basis(_settings(cfg, jc), nb, T, dt)
+            refit = [np.abs(fit(_with_basis(st, nb, T, dt))[:-1]).max()
+                     for fit, st in demo_fits.values()]
+            w_scale = max(refit) if refit else 1.0
         scale = (jc.learn.perturbation_rad if jc.learn.init == "perturbed"
-                 else jc.learn.weight_scale * w_ref)
+                 else jc.learn.weight_scale * w_scale)
         init.append((sl, scale, center, jc.learn.goal_spread, jc.learn.init))
     if L.error == "stabilizing":
         error_mask = stabilizing.astype(float)
@@ -377,7 +385,8 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
         raise ConfigError([(f"joints.{joints[i]}.follow_demo", "with learn: only for a "
                             "physical walker (walking.feet)") for i in referenced], src)
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
-                     init, source, hybrid, plant, model_learner, fit_rms)
+                     init, source, hybrid, plant, model_learner, fit_rms,
+                     init_reference=init_reference)
     if L.sensitivity == "casadi" and learner.n_learned:
         learner.set_casadi_jacobian(CasadiJacobian(robot.model, primitives, learner.learned))
     return exp
@@ -488,6 +497,29 @@ def _walker_model_learner(cfg: ExperimentConfig, robot: Robot, motors: list[str]
         raise ConfigError(problems, src)
     model = robot.model if M.features == "regressor" else None
     return WalkerModelLearner(model, motors, M.rate, M.motor_bias, M.damping)
+
+
+def _demo_fitter(q, v, a, series, phi, goal):
+    """Eq. 2.4 of one demonstration into a given primitive (a positions demo over its
+    series' coefficients, else over the fine samples ``q, v, a`` at the phases ``phi``)."""
+    if series is not None:
+        return lambda prim: prim.fit_series(series)
+    return lambda prim: prim.fit(q, v, a, phi, goal=goal)
+
+
+def _settings(cfg: ExperimentConfig, jc: JointConfig) -> dict:
+    """The primitives block with the joint's own overrides."""
+    settings = cfg.primitives.model_dump()
+    if jc.primitive is not None:
+        settings.update({k: v for k, v in jc.primitive.model_dump().items() if v is not None})
+    return settings
+
+
+def _with_basis(settings: dict, n_basis: int, T: float, dt: float) -> RhythmicPrimitive:
+    """The primitive of ``settings`` (the primitives block with a joint's override) with
+    ``n_basis`` basis functions; a width that was set is kept."""
+    return RhythmicPrimitive(n_basis, T, dt, settings["alpha_z"], settings["beta_z"],
+                             settings["width"], settings["amplitude"])
 
 
 def _goal_centers(law: FeedbackLaw, goals: np.ndarray) -> np.ndarray:

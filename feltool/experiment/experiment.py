@@ -17,7 +17,7 @@ from feltool.dynamics.interface import Dynamics
 from feltool.learning.fel import FeedbackErrorLearner
 from feltool.learning.model import ModelLearner
 from feltool.motion.motion import varying_phase
-from feltool.motion.rmp import PrimitiveSet
+from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive, fit_trajectory
 from feltool.robot.robot import Robot
 from feltool.walking.pinned import HybridLoop
 
@@ -67,6 +67,9 @@ class Experiment:
     plant: Dynamics | None = None
     model_learner: ModelLearner | None = None
     demo_fit_rms: dict[str, float] = field(default_factory=dict)
+    #: init random with ``learn.init_basis`` other than the joint's basis: the RMP (by the
+    #: slice's start) the weights are drawn on, whose forward trajectory is fitted into the basis
+    init_reference: dict[int, RhythmicPrimitive] = field(default_factory=dict)
     engine: str = "python"
     engine_reason: str = "not chosen yet (feltool.engines.select.choose_engine)"
     compiled: Any = field(default=None, repr=False, compare=False)
@@ -98,7 +101,13 @@ class Experiment:
         theta = self.theta_demo.copy()
         for sl, w_std, g_center, g_spread, kind in self.init:
             nw = sl.stop - sl.start - 1
-            if kind == "random":
+            ref = self.init_reference.get(sl.start)
+            if kind == "random" and ref is not None:
+                # the same draw on the reference basis, its forward trajectory fitted into ours
+                w = rng.normal(0.0, w_std, ref.n_basis)
+                g = g_center + rng.uniform(-g_spread, g_spread)
+                theta[sl] = fit_trajectory(ref, self._primitive(sl), np.append(w, g))
+            elif kind == "random":
                 theta[sl.start:sl.stop - 1] = rng.normal(0.0, w_std, nw)
                 theta[sl.stop - 1] = g_center + rng.uniform(-g_spread, g_spread)
             elif kind == "zero":
@@ -109,8 +118,7 @@ class Experiment:
                 # harmonics of the cycle with N(0, 1) coefficients, scaled to w_std [rad] RMS
                 # (a sample demo's fitted weights are huge: a scale relative to them means
                 # nothing in radians, and random weights would be a rough, violent motion)
-                prim = next(self.primitives.primitives[i] for i, s in
-                            self.primitives.slices.items() if s == sl)
+                prim = self._primitive(sl)
                 n = prim.n_steps
                 phi = 2.0 * np.pi * np.arange(n) / n
                 c = rng.normal(0.0, 1.0, (3, 2))
@@ -125,6 +133,10 @@ class Experiment:
                 theta[sl] += dtheta
                 theta[sl.stop - 1] += rng.uniform(-g_spread, g_spread)
         return theta
+
+    def _primitive(self, sl: slice) -> RhythmicPrimitive:
+        return next(self.primitives.primitives[i] for i, s in self.primitives.slices.items()
+                    if s == sl)
 
     def split_parameters(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """``{"<joint>.weights": w, "<joint>.goal": g}`` for the learned joints."""

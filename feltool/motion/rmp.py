@@ -306,6 +306,15 @@ class RhythmicPrimitive:
         return float(np.sqrt(np.mean((self.limit_cycle(phi)[0] @ theta - q) ** 2)))
 
 
+def fit_trajectory(source: RhythmicPrimitive, target: RhythmicPrimitive,
+                   theta: np.ndarray) -> np.ndarray:
+    """Parameters of ``target`` whose limit cycle is closest in :math:`L^2(0, 2\\pi)` to that of
+    ``source`` with parameters ``theta`` (eq. 2.4 over the phase, :meth:`RhythmicPrimitive.
+    fit_series`), with the same goal [rad]: one forward trajectory written in another basis."""
+    theta = np.asarray(theta, dtype=float)
+    return target.fit_series(source.series[:, :source.n_params] @ theta, goal=float(theta[-1]))
+
+
 def sine_demo(mean: float, amplitude: float, period_s: float, phase: float, t: np.ndarray,
               harmonics=(), delay: float = 0.0):
     """``q(t) = mean + amplitude sin(w s + phase) + sum_k A_k sin(k w s + phi_k)`` with
