@@ -118,14 +118,17 @@ def test_run_files_respect_the_umask(finished):
 
 def test_a_second_process_cannot_write_a_running_directory(tmp_path):
     out = tmp_path / "run"
-    first = _popen("run", "two_link_standard", "--seeds", "0-1", "--cycles", "80",
-                   "--workers", "1", "--no-progress", "--out", str(out))
+    # the Python engine and 300 cycles: still running when stopped (the compiled engine's 80
+    # cycles could end between run.json appearing and the SIGSTOP on a busy machine)
+    first = _popen("run", "two_link_standard", "--seeds", "0-1", "--cycles", "300",
+                   "--workers", "1", "--no-progress", "--set", "backend=pinocchio",
+                   "--out", str(out))
     try:
         _wait_for(out / "run.json", first)
         os.killpg(first.pid, signal.SIGSTOP)  # hold it mid-run (however fast the machine)
         assert run_state(out) == "running"
         for extra in ([], ["--resume"]):  # a new run, and a resume, on the same directory
-            r = feltool("run", "two_link_standard", "--seeds", "0-1", "--cycles", "80",
+            r = feltool("run", "two_link_standard", "--seeds", "0-1", "--cycles", "300",
                         "--out", str(out), *extra)
             assert r.returncode == 2, (extra, r.stderr)
             assert ("in use by another feltool process" in r.stderr
@@ -139,7 +142,7 @@ def test_a_second_process_cannot_write_a_running_directory(tmp_path):
             first.kill()
     assert run_state(out) == "complete" and not (out / ".lock").exists()
     rows = (out / "metrics.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 * 80  # intact: every (seed, cycle) row once
+    assert len(rows) == 1 + 2 * 300  # intact: every (seed, cycle) row once
 
 
 def test_a_killed_run_reads_interrupted_and_resumes_to_the_same_numbers(tmp_path):
