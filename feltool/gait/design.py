@@ -55,7 +55,7 @@ from feltool.dynamics.symbolic import (
 )
 from feltool.errors import FeltoolError, InputError
 from feltool.walking.model import WalkerModel
-from feltool.walking.standing import standing_pose
+from feltool.walking.standing import standing_pose, to_configuration
 
 
 class GaitDesignError(FeltoolError):
@@ -176,18 +176,6 @@ def _unbounded(model: pin.Model) -> list[tuple[int, int]]:
     """``(idx_q, idx_v)`` of every continuous joint (configuration ``(cos, sin)``)."""
     return [(int(j.idx_q), int(j.idx_v)) for j in model.joints[1:]
             if j.nq == 2 and j.nv == 1]
-
-
-def pin_configuration(model: pin.Model, q_min: np.ndarray) -> np.ndarray:
-    """Pinocchio configuration (nq) from minimal coordinates (nv): a continuous joint's angle
-    th becomes ``(cos th, sin th)``."""
-    q = np.zeros(model.nq)
-    for j in model.joints[1:]:
-        if j.nq == 2 and j.nv == 1:
-            q[j.idx_q:j.idx_q + 2] = np.cos(q_min[j.idx_v]), np.sin(q_min[j.idx_v])
-        elif j.nv == 1:
-            q[j.idx_q] = q_min[j.idx_v]
-    return q
 
 
 def minimal_configuration(model: pin.Model, q: np.ndarray) -> np.ndarray:
@@ -460,7 +448,7 @@ def design_gait(walker: WalkerModel, spec: GaitSpec,
     Qn, Vn, An, Fn, Vpn, In, Un, Tn, Ln = (np.array(y) for y in unpack(x))
     tau = (B @ Un).T if Un.size else np.zeros((N + 1, nv))
     gait = Gait(t=np.linspace(0.0, Tn.item(), N + 1), q=Qn.T,
-                q_pin=np.array([pin_configuration(W.model, qq) for qq in Qn.T]), v=Vn.T, a=An.T,
+                q_pin=np.array([to_configuration(W.model, qq) for qq in Qn.T]), v=Vn.T, a=An.T,
                 tau=tau, force=Fn.T * mg, v_plus=Vpn.ravel(), impulse=In.ravel() * imp_scale,
                 duration=Tn.item(), step_length=Ln.item(), stats=info)
     gait.metrics = gait_metrics(walker, W.model, gait, spec, exempt)

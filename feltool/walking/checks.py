@@ -75,3 +75,19 @@ class NotWalking(Exception):
     def __init__(self, message: str, kind: str):
         super().__init__(message)
         self.kind = kind
+
+
+def check_clearance(chk: ContactChecks, st: StepStats, height: float, ahead: float) -> None:
+    """The swing foot away from a touchdown, ``height`` [m] above the ground and ``ahead`` [m]
+    of the stance foot: its lowest height counted, and :class:`NotWalking` when it is below
+    the ground by over ``chk.clearance_tol`` -- outside the scuffing zone, and (with
+    ``chk.scuff_behind``, the compass-gait convention) ahead of the stance foot only."""
+    if abs(ahead) < chk.scuff_exempt or (chk.scuff_behind and ahead <= 0.0):
+        return
+    st.min_clearance = min(st.min_clearance, height)
+    if height < -chk.clearance_tol:
+        where = "behind" if ahead <= 0.0 else "ahead of"
+        raise NotWalking(f"the swing foot is {-height * 1e3:.3g} mm below the ground, "
+                         f"{abs(ahead):.3g} m {where} the stance foot, away from a touchdown "
+                         f"(walking.scuff_exempt_m = {chk.scuff_exempt}, walking.clearance_tol_m"
+                         f" = {chk.clearance_tol})", "clearance")

@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from feltool.robot.mujoco import MujocoPlant
-from feltool.walking.checks import NotWalking
+from feltool.walking.checks import NotWalking, check_clearance
 from feltool.walking.physical import PhysicalLoop, WalkLog
 
 LIFT_OFF_HYSTERESIS = 0.0002  #: a foot point this high [m] has left the floor
@@ -173,18 +173,11 @@ class MujocoLoop(PhysicalLoop):
             return q1, v1, None
         ahead = p_sw[0] - self._x0
         exempt = abs(ahead) < chk.scuff_exempt
-        sim.set_collides(swing, not exempt)
+        # (the compass-gait convention: a knee-less swing leg passes the stance leg's foot)
+        sim.set_collides(swing, not (exempt or (chk.scuff_behind and ahead <= 0.0)))
         landing = not exempt and ahead > 0.0 and gap0 > 0.0 and p_sw[2] <= 0.0
         if not landing:
-            if not exempt:
-                st.min_clearance = min(st.min_clearance, float(p_sw[2]))
-                if p_sw[2] < -chk.clearance_tol:
-                    where = "behind" if ahead <= 0.0 else "ahead of"
-                    raise NotWalking(
-                        f"the swing foot is {-p_sw[2] * 1e3:.3g} mm below the ground, "
-                        f"{abs(ahead):.3g} m {where} the stance foot, away from a touchdown "
-                        f"(walking.scuff_exempt_m = {chk.scuff_exempt}, walking."
-                        f"clearance_tol_m = {chk.clearance_tol})", "clearance")
+            check_clearance(chk, st, float(p_sw[2]), float(ahead))
             return q1, v1, None
         # Touchdown: the swing foot is on the floor ahead; relabel (it becomes the stance foot).
         vz = float(contact.foot_state(q1, v1, W.swing)[1][1])

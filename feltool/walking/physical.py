@@ -41,7 +41,7 @@ from scipy.optimize import brentq
 from feltool.control.feedback import FeedbackLaw
 from feltool.dynamics.interface import Dynamics
 from feltool.dynamics.pinocchio import mass_matrix
-from feltool.walking.checks import NotWalking, StepStats
+from feltool.walking.checks import NotWalking, StepStats, check_clearance
 from feltool.walking.contact import Contact, StanceResult
 from feltool.walking.pinned import HybridLog
 from feltool.walking.walker import PhysicalWalker
@@ -371,15 +371,7 @@ class PhysicalLoop:
         exempt = abs(ahead) < chk.scuff_exempt
         landing = not exempt and ahead > 0.0 and z0 > 0.0 and sz <= 0.0
         if not landing:
-            if not exempt and not (chk.scuff_behind and ahead <= 0.0):  # (compass gaits)
-                st.min_clearance = min(st.min_clearance, float(sz))
-                if sz < -chk.clearance_tol:
-                    where = "behind" if ahead <= 0.0 else "ahead of"
-                    raise NotWalking(
-                        f"the swing foot is {-sz * 1e3:.3g} mm below the ground, {abs(ahead):.3g}"
-                        f" m {where} the stance foot, away from a touchdown (walking."
-                        f"scuff_exempt_m = {chk.scuff_exempt}, walking.clearance_tol_m = "
-                        f"{chk.clearance_tol})", "clearance")
+            check_clearance(chk, st, float(sz), float(ahead))
             return q1, v1, None
         # Touchdown inside this sub-step: its time by Brent's method on the sub-step's length.
         def height(s):
