@@ -101,7 +101,8 @@ def run_case(walker: str, world: str, learner: str, seed: int, cycles: int) -> d
     over = overrides(walker, world, learner if learner != "exact" else "trajectory")
     if learner == "exact":  # nothing learned: the feedforward's floor
         over = [o for o in over if o != "backend=compiled"] + ["backend=pinocchio",
-                                                                "learning.rates.weights=0"]
+                                                                "learning.rates.weights=0",
+                                                                "learning.rates.gauss_newton=0"]
     exp = load_experiment(ROOT / "configs" / "gaits" / f"{walker}.yaml", over)
     progress = None
     if learner == "exact":
@@ -138,7 +139,8 @@ def impact_share(walker: str, world: str, cycles: int = 10, window_s: float = 0.
 
     over = [o for o in overrides(walker, world, "trajectory") if o != "backend=compiled"]
     exp = load_experiment(ROOT / "configs" / "gaits" / f"{walker}.yaml",
-                          over + ["backend=pinocchio", "learning.rates.weights=0"])
+                          over + ["backend=pinocchio", "learning.rates.weights=0",
+                                  "learning.rates.gauss_newton=0"])
     plant = world_plant(exp.dynamics, [EventConfig(**world_event(world, exp))])
     exp.hybrid.model_correction = exact_correction(exp, world)
     st = initial_state(exp, 0)

@@ -117,3 +117,21 @@ def test_a_short_run_of_each_world_learns_on_two_seeds(world):
         assert fb[1] < 1e-5 < 1.0 < fb[2]  # the design, then the world changes
         assert fb[-1] < factor * fb[2], (world, seed, fb[-1] / fb[2])
         assert max(r["stabilized_rms"] for r in res.rows) < 0.01
+
+
+def test_a_changed_world_runs_again_from_the_compiled_cache():
+    """A second experiment of the same changed world loads the cached library (one build for
+    every world: the physical walker's graph has one cycle and one trace, whatever the number
+    of worlds) and walks the same cycles as the first, which built it."""
+    from feltool.engines.compiled.library import c_compiler
+
+    if c_compiler() is None:
+        pytest.skip("no C compiler (cc or gcc) on PATH: install gcc")
+    event = WORLDS["slope"][0]
+    rows = []
+    for _ in range(2):
+        exp = load_experiment(THREE, [*DESIGN, LEARN, "backend=compiled", f"events=[{event}]"])
+        res = run_seed(exp, 0, 4)
+        assert exp.engine == "compiled" and not res.summary["diverged"]
+        rows.append([r["fb_abs_mean_error"] for r in res.rows])
+    np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12)

@@ -104,7 +104,9 @@ class CompiledEngine:
         self.walker = exp.hybrid is not None and not self.physical
         self.per_step = exp.config.learning.step == "per_step"
         key = _cache_key(exp, plants) if compile else None
-        fns = cached(key, self._names(len(plants))) if key is not None else None
+        # (a physical walker's one build serves every world: its plant is an input)
+        n_worlds = 1 if self.physical else len(plants)
+        fns = cached(key, self._names(n_worlds)) if key is not None else None
         if fns is None:
             fns = self._build(exp, plants)
             if compile:
