@@ -47,6 +47,9 @@ EXEMPT = {
     "python benchmarks/phase_experiments.py": "a measured benchmark: 20 seeds of every phase "
                                               "experiment, minutes (benchmarks/)",
     "python benchmarks/biped_figures.py": "redraws docs/figures from a full 150-cycle run",
+    "python benchmarks/walk_mujoco.py": "a measured benchmark: 10 seeds x 150 cycles of both "
+                                        "walkers on MuJoCo, ~40 min (tests/test_mujoco.py runs "
+                                        "its short learning check)",
 }
 #: A command with one of these needs a service that is not here.
 NEEDS_SERVICE = ("--zmq-url", "--scheduler")
