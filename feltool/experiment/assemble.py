@@ -203,8 +203,9 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
             d = jc.demo
             series = positions_series(d, source, f"joints.{name}.demo", src)
             q, v, a = demo_trajectory(d, T, fine_t, series)
-            demo_fit = _demo_fitter(q, v, a, series, 2.0 * np.pi * fine_t / T,
-                                    float(np.mean(q)) if d.kind == "samples" else d.mean)
+            goal = None if series is not None else (  # (a positions demo fits its series)
+                float(np.mean(q)) if d.kind == "samples" else d.mean)
+            demo_fit = _demo_fitter(q, v, a, series, 2.0 * np.pi * fine_t / T, goal)
             thetas[i] = demo_fit(prim)
             if not (jc.follow_demo and jc.learn is not None):  # as the w_ref below
                 demo_fits[i] = (demo_fit, settings)
