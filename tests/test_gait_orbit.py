@@ -17,11 +17,13 @@ from feltool.config.files import read_yaml
 from feltool.gait.config import gait_config, gait_spec, walker_from_raw
 from feltool.gait.design import design_gait
 from feltool.gait.orbit import GaitNotWalking, close_on_orbit, verify_design
+from feltool.gait.poincare import poincare
 from feltool.runs.experiments import build_experiment
 
 from .conftest import other_walker_urdf
 
 COMPASS = Path("configs/gaits/compass_gait.yaml")
+FIVE_LINK = Path("configs/gaits/five_link_walker.yaml")
 
 
 def compass_design(knots: int = 24, rate_hz: int = 250):
@@ -215,3 +217,31 @@ def test_a_walker_never_seen_gets_a_walking_gait_from_its_config_alone(tmp_path,
     assert exp.robot.model.nq == exp.robot.model.nv  # continuous joints as angles
     check = verify_design(exp, steps=4, poincare_analysis=False)
     assert check.walked and check.feedback < 1e-5
+
+
+def test_the_spectral_radius_of_a_kinked_orbit_is_the_slower_sides():
+    """On an orbit closed onto its own samples the loop's phase sits on the linearly interpolated
+    reference's samples at every control step, so the step-to-step map has a kink at its fixed
+    point: forward and backward differences disagree (the shipped five-link walker: about 0.58
+    and 0.14), and a central difference would average them. Read independently of any Jacobian:
+    a seeded perturbation of the fixed point and its negative, iterated in the walker itself,
+    decay at the reported (larger) radius per cycle."""
+    exp = build_experiment(read_yaml(FIVE_LINK), FIVE_LINK)
+    P, Pv, Pa = exp.primitives.desired(exp.theta_demo)
+    q, v = exp.hybrid.initial_state(P, Pv)
+    p = poincare(exp, exp.theta_demo, q, v)
+    plus, minus = p["spectral_radius_one_sided"]
+    assert not p["smooth"] and min(plus, minus) < 0.5 * max(plus, minus)
+    assert p["spectral_radius"] == max(plus, minus) and p["stable"]
+    fixed = np.array(p["fixed_point_q"] + p["fixed_point_v"])
+    nv = len(fixed) // 2
+    d = np.random.default_rng(2012).standard_normal(len(fixed))
+    for sign in (1.0, -1.0):
+        x = fixed + sign * 1e-4 * d / np.linalg.norm(d)
+        norms = []
+        for _ in range(10):
+            log = exp.hybrid.run_cycle(exp.dynamics, x[:nv], x[nv:], P, Pv, Pa)
+            x = np.concatenate([log.q_end, log.v_end])
+            norms.append(np.linalg.norm(x - fixed))
+        decay = np.exp(np.polyfit(np.arange(3, 11), np.log(norms[2:]), 1)[0])
+        assert decay == pytest.approx(p["spectral_radius"], rel=0.02), sign

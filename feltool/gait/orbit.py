@@ -389,6 +389,12 @@ class GaitNotWalking(GaitDesignError):
         elif message is None and not p.get("fixed_point_found"):
             message = ("walks, but the loop has no periodic orbit nearby (fixed-point residual "
                        f"{p.get('fixed_point_residual', np.nan):.2g})")
+        elif message is None and not p.get("smooth", True):
+            plus, minus = p["spectral_radius_one_sided"]
+            message = (f"walks, but its orbit is unstable on one side (step-to-step map "
+                       f"spectral radius {plus:.3g} for perturbations ahead, {minus:.3g} behind:"
+                       " the loop drifts off the orbit to a nearby one; another step length, "
+                       "duration or speed may give a stable one)")
         elif message is None:
             message = f"walks, but its orbit is unstable (spectral radius {p['spectral_radius']:.3g})"
         super().__init__(message)

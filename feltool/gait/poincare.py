@@ -6,7 +6,12 @@ learning cycle = ``steps_per_cycle`` steps), so the map :math:`x_{h+1} = P(x_h)`
 next is its Poincaré map. A fixed point :math:`x^* = P(x^*)` is a periodic gait; it is a stable
 limit cycle when every eigenvalue of :math:`\partial P/\partial x` at :math:`x^*` lies inside the
 unit circle. The fixed point is found by iterating :math:`P` and then Newton's method on
-:math:`P(x) - x` with a central finite-difference Jacobian. The map runs on the experiment's
+:math:`P(x) - x` with a central finite-difference Jacobian. The spectrum is that of the
+forward and of the backward difference Jacobian, the larger radius reported: the loop's
+reference is interpolated linearly between its samples, so the map may have a kink at the
+fixed point (an orbit closed onto its own samples has its phase on them at every control
+step), and a gait is stable only when both sides contract (``smooth`` says whether they
+agree within 2 %). The map runs on the experiment's
 compiled engine when it has one (the Python engine's loop gives the same end states to
 rounding), the last cycle on the Python engine for its touchdowns.
 """
@@ -74,8 +79,9 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
     log = hyb.run_cycle(plant, x[:nv], x[nv:], P, Pv, Pa)  # its touchdowns and steps
     fx = np.concatenate([log.q_end, log.v_end]) if step is python_step else step(x)[0]
     residual = float(np.abs(fx - x).max())
-    D = _jacobian(step, x, eps)
-    eig = np.linalg.eigvals(D)
+    D_plus, D_minus = _one_sided_jacobians(step, x, fx, eps)
+    rho_sides = [_radius(D_plus), _radius(D_minus)]
+    eig = np.linalg.eigvals(D_plus if rho_sides[0] >= rho_sides[1] else D_minus)
     order = np.argsort(-np.abs(eig))
     eig = eig[order]
     stride = float(sum(abs(fx_) for _, _, fx_ in log.impacts))
@@ -89,6 +95,8 @@ def poincare(exp, theta: np.ndarray, q: np.ndarray, v: np.ndarray, plant=None,
         "eigenvalues_abs": np.abs(eig).tolist(),
         "eigenvalues_real": eig.real.tolist(), "eigenvalues_imag": eig.imag.tolist(),
         "spectral_radius": float(np.abs(eig).max()),
+        "spectral_radius_one_sided": rho_sides,
+        "smooth": bool(abs(rho_sides[0] - rho_sides[1]) <= _SMOOTH_TOL * max(rho_sides)),
         "stable": bool(np.abs(eig).max() < 1.0),
         "impacts_per_cycle": len(log.impacts),
         "impacts_by_guard": sum(bool(g) for _, g, _ in log.impacts),
@@ -109,6 +117,32 @@ def _compiled_step(exp, theta: np.ndarray, plant, theta_m=None):
         return (None if out.fall else np.concatenate([out.q_end, out.v_end])), out.fall
 
     return step
+
+
+_SMOOTH_TOL = 0.02  # one-sided spectral radii this close (relative): the map is smooth there
+
+
+def _radius(D: np.ndarray) -> float:
+    return float(np.abs(np.linalg.eigvals(D)).max()) if np.all(np.isfinite(D)) else np.inf
+
+
+def _one_sided_jacobians(step, x: np.ndarray, fx: np.ndarray, eps: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Forward and backward difference Jacobians of ``step`` at ``x`` (``fx = step(x)``), with
+    the same 2 n cycles as a central difference. The loop interpolates its reference linearly
+    between samples, and on an orbit closed onto its own samples (:mod:`feltool.gait.orbit`)
+    the phase sits on them at every control step: the map has a kink there, and a central
+    difference would average a contracting side with an expanding one. A perturbation that
+    falls (NaN column) gives an infinite radius."""
+    n = len(x)
+    D = [np.empty((n, n)), np.empty((n, n))]
+    for i in range(n):
+        for side, sign in enumerate((1.0, -1.0)):
+            dx = np.zeros(n)
+            dx[i] = sign * eps
+            nxt, _ = step(x + dx)
+            D[side][:, i] = np.nan if nxt is None else (nxt - fx) / (sign * eps)
+    return D[0], D[1]
 
 
 def _jacobian(step, x: np.ndarray, eps: float) -> np.ndarray:
