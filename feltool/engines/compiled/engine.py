@@ -78,7 +78,8 @@ def _cache_key(exp: Experiment, plants: list) -> str:
 #: Config fields a physical walker's compiled cycle takes as inputs or does not read (besides
 #: the joints' demos and targets' values): a new design of the same walker (its demos, period,
 #: slope, torso target) loads the walker's cached library (:func:`_physical_key`).
-DESIGN_FIELDS = ("name", "description", "period_s", "gravity", "seeds")
+DESIGN_FIELDS = ("name", "description", "period_s", "gravity", "seeds", "backend", "success",
+                 "sweep")
 
 
 def _physical_key(exp: Experiment) -> str:
@@ -101,6 +102,8 @@ def _physical_key(exp: Experiment) -> str:
         if isinstance(joint.get("target"), dict):
             joint["target"].pop("value", None)  # (params)
     (cfg.get("sim") or {}).pop("cycles", None)
+    for name in ("poincare", "settle_cycles"):  # (after the run; the start state)
+        (cfg.get("walking") or {}).pop(name, None)
     digest = hashlib.sha256(json.dumps(cfg, sort_keys=True).encode())
     model = pin.Model(exp.hybrid.walker.walker.model)
     model.gravity = pin.Motion.Zero()
