@@ -113,8 +113,9 @@ def whole_process(repeats: int = 5) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for _label, name, options, other, target in WHOLE:
             env = {**os.environ, "FELTOOL_CACHE": f"{tmp}/cache-{name}"}
-            args = lambda opts, out: ["gait", str(CONFIGS / f"{name}.yaml"), *opts,  # noqa: E731
-                                      "--out", f"{tmp}/{out}.yaml", "--no-progress"]
+            args = lambda opts, out, name=name: [  # noqa: E731
+                "gait", str(CONFIGS / f"{name}.yaml"), *opts, "--out", f"{tmp}/{out}.yaml",
+                "--no-progress"]
             cold = timed(args(options, name), env)
             libs = sorted(Path(f"{tmp}/cache-{name}/compiled").glob("*.so"))
             new = timed(args(other, name + "-other"), env)

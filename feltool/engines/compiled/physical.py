@@ -389,10 +389,9 @@ def physical_cycle_function(exp, plant=None, full: bool = False, name: str = "ph
     compiled once)."""
     g = graph or PhysicalGraph(exp)
     lay = g.lay
-    kin, stp, W, law, learner = g.kin, g.stp, g.kin.W, exp.law, exp.learner
+    kin, stp, W, learner = g.kin, g.stp, g.kin.W, exp.learner
     nv, n, k, L, PL = g.nv, g.n, g.k, len(lay.blocks), lay.n_learned
-    ns, spc = stp.ns, stp.spc
-    refs = stp.refs
+    spc, refs = stp.spc, stp.refs
     state = ca.MX.sym("state", lay.n_state)
     data = ca.MX.sym("data", lay.n_data + 3 * n * len(refs) + 2)  # the cycle's n, ns last
     params = ca.MX.sym("params", lay.n_params + kin.n_world + 3)  # the worlds last
