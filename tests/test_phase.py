@@ -457,3 +457,19 @@ def test_a_resumed_seed_continues_its_phase_bit_identically(overrides, tmp_path)
     run_seed(exp, 0, 5, checkpoint=ck)
     resumed = run_seed(exp, 0, 9, checkpoint=ck).rows
     assert resumed == whole
+
+
+def test_a_physical_walker_without_a_phase_is_mechanical():
+    """walking.phase defaults to mechanical for a physical walker in the schema (issue 30), not
+    only in the configs feltool gait writes; a given primitives.phase still decides."""
+    import yaml
+
+    config = CONFIGS / "gaits" / "compass_gait.yaml"
+    raw = yaml.safe_load(config.read_text())
+    del raw["walking"]["phase"]
+    raw.get("primitives", {}).pop("phase", None)
+    exp = build_experiment(raw, source=config)
+    assert exp.config.walking.phase == exp.config.primitives.phase == "mechanical"
+    assert exp.config.model_dump() == load_experiment(config).config.model_dump()
+    raw["primitives"]["phase"] = "clock"
+    assert build_experiment(raw, source=config).config.walking.phase == "clock"

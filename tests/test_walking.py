@@ -349,7 +349,8 @@ def physical_config(**walking):
         },
         "walking": {"feet": {"left": {"frame": "left_foot"}, "right": {"frame": "right_foot"}},
                     "legs": [["left_hip", "right_hip"]], "steps_per_cycle": 2,
-                    "poincare": False, **walking},
+                    "poincare": False, "phase": "clock", **walking},  # (a clock gait: its
+                    # centre of mass does not move forward through every step)
         "learning": {"error": "all_feedback", "update": "gradient",  # per sample 2e-5, 2e-9
                      "rates": {"weights": 0.021066, "goal": 4e-7}},
         "seeds": 1,

@@ -139,13 +139,17 @@ class ExperimentConfig(Strict):
     @classmethod
     def _one_mechanical_phase(cls, data: Any) -> Any:
         """``primitives.phase: mechanical`` and ``walking.phase: mechanical`` are one setting:
-        either one given alone sets the other."""
+        either one given alone sets the other. A physical walker (``walking.feet``) that gives
+        neither is mechanical (the clock phase drifts off a designed gait: docs/biped.md)."""
         if not isinstance(data, dict):
             return data
         prims, walking = data.get("primitives"), data.get("walking")
         if not isinstance(walking, dict) or (prims is not None and not isinstance(prims, dict)):
             return data
         prims = dict(prims or {})
+        if walking.get("feet") is not None and "phase" not in walking and "phase" not in prims:
+            return {**data, "walking": {**walking, "phase": "mechanical"},
+                    "primitives": {**prims, "phase": "mechanical"}}
         if "phase" not in prims and walking.get("phase") == "mechanical":
             return {**data, "primitives": {**prims, "phase": "mechanical"}}
         if "phase" not in walking and prims.get("phase") == "mechanical":

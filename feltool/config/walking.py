@@ -132,7 +132,8 @@ class WalkingConfig(Strict):
         "follows the centre of mass's horizontal position over the stance foot through its "
         "desired values (mechanical, as in hybrid zero dynamics; the desired velocities scaled "
         "by the phase's rate; the desired centre of mass must move forward all through the "
-        "step).")
+        "step). A physical walker that gives neither this nor primitives.phase is mechanical "
+        "(the clock phase drifts off a designed gait).")
     # -- pinned walker -----------------------------------------------------------------------
     absolute: dict[str, list[str]] | None = Field(None, min_length=1, description="Pinned "
         "walker: for every joint, the joints whose angles add up to its link's absolute angle "

@@ -163,6 +163,22 @@ def symbolic_rnea(model: pin.Model) -> ca.Function:
     return ca.Function("rnea", [q, v, a], [ca.densify(tau)], ["q", "v", "a"], ["tau"])
 
 
+def symbolic_rnea_gravity(model: pin.Model, parametric: bool = False) -> ca.Function:
+    """``rnea(q, v, a, g) -> tau``: :func:`symbolic_rnea` with the linear gravity ``g`` (3, in
+    [m/s^2]) an input instead of the model's (the same operations: with the model's gravity
+    it gives :func:`symbolic_rnea`'s numbers). With ``parametric``: ``rnea(q, v, a, pi, g)``,
+    the bodies' inertial parameters an input too (:func:`symbolic_rnea_world`)."""
+    if parametric:
+        return symbolic_rnea_world(model)
+    check_has_joints(model)
+    joints = describe_joints(model)
+    q, v, a = _symbols(model, "a")
+    g = ca.SX.sym("g", 3)
+    tau = _rnea_expr(model, joints, q, v, a, None, g)
+    return ca.Function("rnea_gravity", [q, v, a, g], [ca.densify(tau)],
+                       ["q", "v", "a", "g"], ["tau"])
+
+
 def symbolic_rnea_parametric(model: pin.Model) -> ca.Function:
     """``rnea(q, v, a, pi) -> tau``: the inverse model with the bodies' inertial parameters
     ``pi`` (10 per joint, Pinocchio's ``toDynamicParameters`` order: [kg], [kg m],

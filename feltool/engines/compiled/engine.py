@@ -15,6 +15,7 @@ phases, the other joints' motion, transients) are passed per call.
 
 from __future__ import annotations
 
+import json
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -74,6 +75,43 @@ def _cache_key(exp: Experiment, plants: list) -> str:
     return digest.hexdigest()
 
 
+#: Config fields a physical walker's compiled cycle takes as inputs or does not read (besides
+#: the joints' demos and targets' values): a new design of the same walker (its demos, period,
+#: slope, torso target) loads the walker's cached library (:func:`_physical_key`).
+DESIGN_FIELDS = ("name", "description", "period_s", "gravity", "seeds", "backend", "success",
+                 "sweep")
+
+
+def _physical_key(exp: Experiment) -> str:
+    """What determines a physical walker's cycle graphs, as text: its validated config without
+    what the graph takes as inputs (the demos, the period, the gravity: :data:`DESIGN_FIELDS`;
+    the gains, targets, rates and initial parameters are inputs of every compiled cycle), the
+    robot model without its gravity, and the graph's capacity in samples. Every world is an
+    input (:func:`~feltool.engines.compiled.physical_step.world_vector`)."""
+    import hashlib
+
+    import pinocchio as pin
+
+    from feltool.engines.compiled.physical_step import capacity
+
+    cfg = exp.config.model_dump(mode="json")
+    for name in DESIGN_FIELDS:
+        cfg.pop(name, None)
+    for joint in (cfg.get("joints") or {}).values():
+        joint.pop("demo", None)  # (data)
+        if isinstance(joint.get("target"), dict):
+            joint["target"].pop("value", None)  # (params)
+    (cfg.get("sim") or {}).pop("cycles", None)
+    for name in ("poincare", "settle_cycles"):  # (after the run; the start state)
+        (cfg.get("walking") or {}).pop(name, None)
+    digest = hashlib.sha256(json.dumps(cfg, sort_keys=True).encode())
+    model = pin.Model(exp.hybrid.walker.walker.model)
+    model.gravity = pin.Motion.Zero()
+    digest.update(model.saveToString().encode())
+    digest.update(f"capacity {capacity(exp)}".encode())
+    return digest.hexdigest()
+
+
 def worlds(exp: Experiment) -> list:
     """The plants a run meets: ``exp.plant``, then that plant changed by the world events
     up to each event's cycle (the Python engine's :func:`feltool.plant.events.plant_for_cycle`)."""
@@ -96,14 +134,21 @@ class CompiledEngine:
 
     def __init__(self, exp: Experiment, compile: bool = True, vm_fallback: bool = True):
         check_supported(exp)
+        self.physical = exp.config.walking is not None and exp.config.walking.physical
         self.exp, self.lay = exp, layout(exp)
+        if self.physical:  # the graph holds a capacity of samples; a cycle's are an input
+            from feltool.engines.compiled.physical import physical_layout
+
+            self.lay = physical_layout(exp)
         plants = worlds(exp)
         self._worlds = {_fingerprint(p): w for w, p in enumerate(plants)}
         self._world_of: dict[int, tuple] = {}
-        self.physical = exp.config.walking is not None and exp.config.walking.physical
         self.walker = exp.hybrid is not None and not self.physical
         self.per_step = exp.config.learning.step == "per_step"
-        key = _cache_key(exp, plants) if compile else None
+        self.key = None
+        if compile:
+            self.key = _physical_key(exp) if self.physical else _cache_key(exp, plants)
+        key = self.key
         # (a physical walker's one build serves every world: its plant is an input)
         n_worlds = 1 if self.physical else len(plants)
         fns = cached(key, self._names(n_worlds)) if key is not None else None
@@ -126,10 +171,13 @@ class CompiledEngine:
         """The cycle graphs of every world (CasADi functions, not compiled)."""
         fns = []
         if self.physical:  # one build for every world: the plant's parameters are inputs
+            from feltool.engines.compiled.physical import PhysicalGraph
             from feltool.engines.compiled.physical import physical_cycle_function as build
 
             plants = plants[:1]
-            fns += [build(exp, None, False, "cycle_0"), build(exp, None, True, "trace_0")]
+            graph = PhysicalGraph(exp)  # the cycle and the trace call the same step's code
+            fns += [build(exp, None, False, "cycle_0", graph),
+                    build(exp, None, True, "trace_0", graph)]
         for w, plant in enumerate(plants):
             if self.physical:
                 continue
@@ -182,6 +230,8 @@ class CompiledEngine:
         if nominal and key == self._data_key:
             return self._data
         n = lay.n if cycle is None else cycle.n
+        if self.physical:  # (the graph's n is its capacity)
+            n = exp.primitives.n_steps
         pad = lambda X: np.pad(X, [(0, lay.n - n)] + [(0, 0)] * (X.ndim - 1))  # noqa: E731
         parts = []
         for blk in exp.learner.learned_sensitivities(cycle):
@@ -195,9 +245,10 @@ class CompiledEngine:
             parts += [psi.ravel(order="F"), psi.ravel()]
         if lay.masked:
             parts.append(pad(np.ones(n)))
-        if self.physical:  # the referenced joints' samples (a designed gait)
-            for i in sorted(exp.hybrid.reference):
-                parts += [np.asarray(x[:lay.n], float) for x in exp.hybrid.reference[i]]
+        if self.physical:  # the referenced joints' samples (a designed gait), the samples
+            for i in sorted(exp.hybrid.reference):  # of the cycle and of its walk steps
+                parts += [pad(np.asarray(x[:n], float)) for x in exp.hybrid.reference[i]]
+            parts.append([n, n // exp.hybrid.walker.steps_per_cycle])
         out = np.concatenate(parts)
         if nominal:
             self._data_key, self._data = key, out
@@ -220,7 +271,9 @@ class CompiledEngine:
             plant = self.exp.plant
         key = getattr(self, "_world_key", None)
         if key is None or key[0] is not plant:
-            self._world_key = (plant, np.concatenate([self.params, world_vector(plant)]))
+            gravity = self.exp.hybrid.walker.walker.model.gravity.linear  # the known model's
+            self._world_key = (plant, np.concatenate([self.params, world_vector(plant),
+                                                      np.asarray(gravity, float)]))
         return self._world_key[1]
 
     def _params(self, params: np.ndarray | None) -> np.ndarray:

@@ -23,6 +23,10 @@ _WARNED: set[str] = set()
 #: Learning cycles run by one call of the compiled code (the update between them included).
 CYCLES_PER_CALL = 10
 
+#: What this process did with compiled libraries: ``built`` (generated and compiled) and
+#: ``loaded`` (found in the cache) [-].
+COUNTS = {"built": 0, "loaded": 0}
+
 
 def cache_dir() -> Path:
     """Where compiled cycles live: ``$FELTOOL_CACHE`` or ``~/.cache/feltool``."""
@@ -70,6 +74,7 @@ def cached(key: str, names: list[str], directory: Path | None = None) -> list[ca
     lib = (directory or cache_dir()) / f"{library_name(key)}.so"
     if not verified(lib):
         return None
+    COUNTS["loaded"] += 1
     return [ca.external(name, str(lib)) for name in names]
 
 
@@ -98,6 +103,7 @@ def compile_functions(fns: list[ca.Function], directory: Path | None = None,
         name = f"feltool_cycle_{digest.hexdigest()[:20]}"
     lib = directory / f"{name}.so"
     if verified(lib):
+        COUNTS["loaded"] += 1
         return [ca.external(fn.name(), str(lib)) for fn in fns]
     compiler = c_compiler()
     if compiler is None:
@@ -161,6 +167,7 @@ def _build(fns: list[ca.Function], name: str, compiler: str, tmp: Path, lib: Pat
         note_once(f"compiling the cycle failed ({proc.stderr.strip()[:300]}); using "
                   "CasADi's interpreted virtual machine instead")
         return fns
+    COUNTS["built"] += 1
     data = out.read_bytes()
     lib.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(lib.with_name(lib.name + ".json"), json.dumps(

@@ -30,21 +30,36 @@ assignment matrix after the cycle).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import casadi as ca
 import numpy as np
 
 from feltool.control.cycle import fel_update, wrap
 from feltool.control.ops import CASADI
 from feltool.engines.compiled.graph import (
-    cycle_stats,
     desired_from_data,
     layout,
     split_params,
 )
-from feltool.engines.compiled.physical_step import Control, Kin, Step, stop_code
+from feltool.engines.compiled.physical_step import (
+    DESIGN,
+    Control,
+    Kin,
+    Step,
+    capacity,
+    stop_code,
+)
 
 #: Steps chained per block (the cycle is blocks of blocks: few call sites in the C code).
 BLOCK = 40
+
+
+def physical_layout(exp):
+    """The physical walker's :class:`~feltool.engines.compiled.graph.Layout`: its ``n`` the
+    graph's capacity in samples (:func:`~feltool.engines.compiled.physical_step.capacity`),
+    the cycle's own samples an input (the data's last two entries)."""
+    return replace(layout(exp), n=capacity(exp))
 
 
 def row_fields(nv: int) -> list[tuple[str, int]]:
@@ -73,9 +88,9 @@ class PhysicalGraph:
         self.stp = Step(exp, self.kin)
         self.ctl = Control(exp, self.kin, self.stp)
         stp = self.stp
-        self.nv, self.k, self.n = stp.nv, stp.k, stp.n
+        self.nv, self.k, self.n = stp.nv, stp.k, stp.n  # n: the capacity (samples)
         self.n_max = BLOCK * int(np.ceil(3 * self.n / BLOCK))
-        self.lay = layout(exp)
+        self.lay = physical_layout(exp)
         self.sizes = stp.sizes()
         # the FEL sums of eq. 3.6, accumulated step by step (grad; Gauss-Newton: its matrix)
         PL = self.lay.n_learned
@@ -84,25 +99,75 @@ class PhysicalGraph:
         # the model correction's and motor biases' sums (feltool.learning.walker_model)
         self.n_model = Pm = self.ctl.n_model()
         self.sizes.update(grad_m=Pm, hess_m=Pm * Pm)
+        self.sizes.update(count=1)  # the control steps run (the cycle's limit: 3 n)
+        # the cycle's metrics, accumulated step by step (no steps x fields matrix of rows:
+        # the graph holds more steps than a cycle runs)
+        nv, law = self.nv, exp.law
+        self.stab = np.flatnonzero(law.stabilizing).tolist()
+        self.err_refs = not self.stab and bool(stp.refs)
+        n_err = len(stp.refs) if self.err_refs else len(self.stab)
+        self.acc_start = sum(self.sizes.values())
+        self.sizes.update(abs_u=nv, dq2=nv, max_err=1, max_speed=1, abs_urows=nv, abs_uerr=nv,
+                          abs_q=1, work=1, stab_sq=n_err, at=stp.spc, lengths=stp.spc)
         self.n_state = sum(self.sizes.values())
         self.row_size = sum(sz for _, sz in row_fields(self.nv))
+        self._body = None  # (one step's code for the cycle and the trace)
 
-    def step_function(self) -> ca.Function:
-        """One control step (MX) ``(S, consts, kp, kd, targets, srows, w) -> (S', row)``, run
-        only while the cycle runs (the state and an empty row otherwise); ``w`` the plant's
-        world vector (:func:`feltool.engines.compiled.physical_step.world_vector`)."""
+    def input_sizes(self) -> list[int]:
+        """The sizes of a step's inputs after its state: ``consts, kp, kd, targets, srows, w,
+        theta_m, design``."""
+        nv = self.nv
+        return [self.ctl.consts_size(), nv, nv, nv, self.srows_size(), self.kin.n_world,
+                self.n_model, DESIGN]
+
+    def inputs(self) -> list:
+        """The step's inputs after its state as one vector (:meth:`input_sizes`): one
+        argument per call, so that building the graph's thousands of chained calls is quick
+        (CasADi's calls with several large and empty arguments cost milliseconds each)."""
+        return [ca.MX.sym("C", sum(self.input_sizes()))]
+
+    def split_inputs(self, C) -> list:
+        """The pieces of :meth:`inputs`' vector."""
+        out, pos = [], 0
+        for size in self.input_sizes():
+            out.append(C[pos:pos + size])
+            pos += size
+        return out
+
+    def step_function(self, full: bool = True) -> ca.Function:
+        """One control step (MX) ``(S, consts, kp, kd, targets, srows, w, theta_m, design)
+        -> (S', row)``, run only while the cycle runs (the state and an empty row otherwise);
+        ``w`` the plant's world vector (:func:`feltool.engines.compiled.physical_step.
+        world_vector`), ``design`` the cycle's samples and the known model's gravity
+        (:data:`~feltool.engines.compiled.physical_step.DESIGN`). Without ``full``: no row
+        (the same step's code, its row not written)."""
+        if self._body is None:
+            self._body = self._step_body()
+        body = self._body
+        S = ca.MX.sym("S", self.n_state)
+        ins = self.inputs()
+        args = [S, *ins]
+        running = self.is_running(S, self.split_inputs(ins[0])[-1])
+        if not full:
+            run = ca.Function("phys_run_s", args, [body(*args)[0]])
+            idle = ca.Function("phys_idle_s", args, [S])
+            switch = ca.Function.conditional("phys_switch_s", [idle], run)
+            return ca.Function("phys_step_s", args, [switch(running, *args)])
+        idle = ca.Function("phys_idle", args, [S, ca.DM.zeros(self.row_size)])
+        switch = ca.Function.conditional("phys_switch", [idle], body)  # 0: idle, else: run
+        S_out, row_out = switch(running, *args)
+        return ca.Function("phys_step", args, [S_out, row_out])
+
+    def _step_body(self) -> ca.Function:
+        """The control step itself: ``(S, consts, ..., design) -> (S', row)``."""
         stp, W, nv = self.stp, self.kin.W, self.nv
         S = ca.MX.sym("S", self.n_state)
-        consts = ca.MX.sym("consts", self.ctl.consts_size())
-        kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
-        srows = ca.MX.sym("srows", self.srows_size())
-        w = ca.MX.sym("w", self.kin.n_world)
-        theta_m = ca.MX.sym("theta_m", self.n_model)
+        ins = self.inputs()
+        consts, kp, kd, targets, srows, w, theta_m, design = self.split_inputs(ins[0])
         st = unpack(S, self.sizes.items())
-        running = ca.logic_and(st["stop"] == 0, st["done"] == 0)
         (tau, u, over, qd, vd, ad, r, U, Urows, Uerr, A, inert, phase_acc_next, jj, label,
          err, a1, F) = self.ctl.function()(st["q"], st["v"], st["phase_acc"], st["n_imp"], consts,
-                                    kp, kd, targets, w, theta_m)
+                                           kp, kd, targets, w, theta_m, design)
         hits = st["hits"] + over
         stop = st["stop"]
         if W.checks.torques == "report":
@@ -146,17 +211,43 @@ class PhysicalGraph:
                "energy": st["energy"] + impact * lost, "length": st["length"] + impact * length,
                "hits": hits}
         E = Uerr + inert if self.inverse_dynamics else Uerr
-        new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, E, jj, srows)
-        new["grad_m"], new["hess_m"] = self._model_sums(st, qd, vd, ad, A, E)
+        new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, E, jj, srows,
+                                                  design)
+        new["grad_m"], new["hess_m"] = self._model_sums(st, qd, vd, ad, A, E, design)
+        new["count"] = st["count"] + 1
+        new.update(self._metric_sums(st, new, qd, r, U, Urows, Uerr, err, work, impact, length,
+                                     targets))
         S_new = ca.vertcat(*[new[name] for name in self.sizes])
         row = ca.vertcat(1, st["q"], st["v"], qd, r, U, Urows, Uerr, err, work, impact,
                          impact * length, tau)  # (row_fields)
-        args = [S, consts, kp, kd, targets, srows, w, theta_m]
-        body = ca.Function("phys_body", args, [S_new, row])
-        idle = ca.Function("phys_idle", args, [S, ca.DM.zeros(self.row_size)])
-        switch = ca.Function.conditional("phys_switch", [idle], body)  # 0: idle, else: run
-        S_out, row_out = switch(running, *args)
-        return ca.Function("phys_step", args, [S_out, row_out])
+        return ca.Function("phys_body", [S, *ins], [S_new, row])
+
+    def _metric_sums(self, st, new, qd, r, U, Urows, Uerr, err, work, impact, length,
+                     targets) -> dict:
+        """The step's terms of the cycle's metrics (:func:`feltool.engines.compiled.graph.
+        cycle_stats` and the contact metrics, summed over the steps in the same order) added
+        to the state's; ``st`` the state at the step's start, ``new`` the one after it."""
+        q, v = st["q"], st["v"]
+        dq = qd - q
+        C = ca.DM(self.exp.law.C)
+        if self.err_refs:
+            errs = [(C[i, :] @ q) - r[i] for i in self.stp.refs]
+        else:
+            errs = [(C[i, :] @ q) - targets[i] for i in self.stab]
+        sq = ca.vertcat(*[wrap(CASADI, e) ** 2 for e in errs]) if errs else ca.MX.zeros(0)
+        landed = [ca.logic_and(impact > 0, st["n_imp"] == t) for t in range(self.stp.spc)]
+        return {
+            "abs_u": st["abs_u"] + ca.fabs(U), "dq2": st["dq2"] + dq * dq,
+            "max_err": ca.fmax(st["max_err"], err),
+            "max_speed": ca.fmax(st["max_speed"], ca.mmax(ca.fabs(v))),
+            "abs_urows": st["abs_urows"] + ca.fabs(Urows),
+            "abs_uerr": st["abs_uerr"] + ca.fabs(Uerr),
+            "abs_q": st["abs_q"] + ca.sum1(ca.fabs(q)), "work": st["work"] + work,
+            "stab_sq": st["stab_sq"] + sq,
+            "at": ca.vertcat(*[ca.if_else(hit, new["count"], st["at"][t])
+                               for t, hit in enumerate(landed)]),
+            "lengths": ca.vertcat(*[ca.if_else(hit, length, st["lengths"][t])
+                                    for t, hit in enumerate(landed)])}
 
     @property
     def inverse_dynamics(self) -> bool:
@@ -166,7 +257,16 @@ class PhysicalGraph:
         """The learned joints' sensitivity rows, row-major per joint and derivative order."""
         return 3 * self.n * self.lay.n_learned
 
-    def _fel_sums(self, st, qd, vd, ad, label, A, E, jj, srows):
+    def is_running(self, S, design):
+        """Whether the cycle of state ``S`` still runs: nothing stopped it, its walk steps
+        are not all done, and it has run fewer control steps than its limit (3 n, rounded up
+        to whole blocks, n the cycle's samples in ``design``)."""
+        st = unpack(S, self.sizes.items())
+        limit = BLOCK * ca.ceil(3 * design[0] / BLOCK)
+        return ca.logic_and(ca.logic_and(st["stop"] == 0, st["done"] == 0),
+                            st["count"] < limit)
+
+    def _fel_sums(self, st, qd, vd, ad, label, A, E, jj, srows, design):
         """The step's terms of eq. 3.6's sums added to the state's: with the sensitivity row
         of the step's sample ``jj`` (:math:`T_l`, 3 x P_l) and the step's derivative columns
         ``s = d^T e``, ``g = d_a^T d_b`` (:func:`_fel_step`): grad_l += T_l^T s_l,
@@ -175,8 +275,9 @@ class PhysicalGraph:
         L = len(blocks)
         if not L:
             return st["grad"], st["hess"]
-        s_vals, g_vals = _fel_step(self.kin, self.lay, self.exp, self.k)(qd, vd, ad, label, A, E)
-        j = ca.fmin(ca.fmax(jj, 0), n - 1)
+        s_vals, g_vals = _fel_step(self.kin, self.lay, self.exp, self.k)(qd, vd, ad, label, A, E,
+                                                                         design[2:5])
+        j = ca.fmin(ca.fmax(jj, 0), design[0] - 1)
         T, grads, off = [], [], 0
         for l, (_, P) in enumerate(blocks):
             rows = [srows[off + c * n * P + j * P + ca.DM(np.arange(P))] for c in range(3)]
@@ -193,7 +294,7 @@ class PhysicalGraph:
             for l2 in range(L)] for l1 in range(L)]
         return grad, st["hess"] + ca.vec(ca.blockcat(blocks_h))
 
-    def _model_sums(self, st, qd, vd, ad, A, E):
+    def _model_sums(self, st, qd, vd, ad, A, E, design):
         r"""The step's terms of the model learner's sums (:mod:`feltool.learning.walker_model`)
         added to the state's: with :math:`\Phi = [A Y, I]` and :math:`e_m = A e`,
         ``grad_m += Phi^T e_m``, ``hess_m += Phi^T Phi``."""
@@ -203,7 +304,7 @@ class PhysicalGraph:
         Am = ca.reshape(A, k, self.nv)
         cols = []
         if kin.n_pi:
-            cols.append(ca.mtimes(Am, kin.regressor(qd, vd, ad)))
+            cols.append(ca.mtimes(Am, kin.regressor(qd, vd, ad, design[2:5])))
         if self.n_model > kin.n_pi:
             cols.append(ca.DM.eye(k))
         Phi = ca.horzcat(*cols)
@@ -229,22 +330,39 @@ class PhysicalGraph:
         land = ca.MX.sym("land")
         return ca.Function("touchdown_or_not", [land, *args], [switch(land, *args)])
 
-    def steps_function(self) -> ca.Function:
+    def steps_function(self, full: bool = True) -> ca.Function:
         """All the cycle's steps: blocks of :data:`BLOCK` chained steps, chained (few call
-        sites; the constants read in place)."""
-        one = self.step_function()
+        sites; the constants read in place). A block that starts with the cycle over is not
+        run (the state and empty rows): the graph holds the capacity's steps, a cycle runs
+        its own. Without ``full``: the state only (no rows)."""
+        one = self.step_function(full)
         S = ca.MX.sym("S", self.n_state)
-        consts = ca.MX.sym("consts", self.ctl.consts_size())
-        kp, kd, targets = (ca.MX.sym(s, self.nv) for s in ("kp", "kd", "targets"))
-        srows = ca.MX.sym("srows", self.srows_size())
-        w = ca.MX.sym("w", self.kin.n_world)
-        theta_m = ca.MX.sym("theta_m", self.n_model)
-        args = [consts, kp, kd, targets, srows, w, theta_m]
+        args = self.inputs()
+        if not full:
+            s = S
+            for _ in range(BLOCK):
+                s = one(s, *args)
+            body = ca.Function("phys_block_run_s", [S, *args], [s])
+            idle = ca.Function("phys_block_idle_s", [S, *args], [S])
+            switch = ca.Function.conditional("phys_block_switch_s", [idle], body)
+            block = ca.Function("phys_block_s", [S, *args],
+                                [switch(self.is_running(S, self.split_inputs(args[0])[-1]),
+                                        S, *args)])
+            s = S
+            for _ in range(self.n_max // BLOCK):
+                s = block(s, *args)
+            return ca.Function("phys_steps_s", [S, *args], [s])
         s, rows = S, []
         for _ in range(BLOCK):
             s, row = one(s, *args)
             rows.append(row)
-        block = ca.Function("phys_block", [S, *args], [s, ca.horzcat(*rows)])
+        body = ca.Function("phys_block_run", [S, *args], [s, ca.horzcat(*rows)])
+        idle = ca.Function("phys_block_idle", [S, *args],
+                           [S, ca.DM.zeros(self.row_size, BLOCK)])
+        switch = ca.Function.conditional("phys_block_switch", [idle], body)
+        block = ca.Function("phys_block", [S, *args],
+                            list(switch(self.is_running(S, self.split_inputs(args[0])[-1]),
+                                        S, *args)))
         s, rows = S, []
         for _ in range(self.n_max // BLOCK):
             s, r = block(s, *args)
@@ -259,27 +377,30 @@ CONTACT = ("min_normal_force", "max_friction_ratio", "min_clearance", "max_impul
            "stabilized_rms")
 
 
-def physical_cycle_function(exp, plant=None, full: bool = False,
-                            name: str = "phys_cycle") -> ca.Function:
+def physical_cycle_function(exp, plant=None, full: bool = False, name: str = "phys_cycle",
+                            graph: PhysicalGraph | None = None) -> ca.Function:
     """The physical walker's cycle ``(state, data, params) -> (state', stats)`` (the arm's
     data with the referenced joints' samples appended; the params with the simulated world's
     vector appended, :func:`~feltool.engines.compiled.physical_step.world_vector`: one build
     runs every world of the walker's joints, ``plant`` is not used); ``stats``: the arm's, then the stop
     code, the steps run, the touchdowns' steps and lengths, and :data:`CONTACT`. With
-    ``full``: the rows of every step (:func:`row_fields`)."""
-    g = PhysicalGraph(exp)
+    ``full``: the rows of every step (:func:`row_fields`). ``graph``: the walker's
+    :class:`PhysicalGraph`, shared by its cycle and its trace (one step's code in the library,
+    compiled once)."""
+    g = graph or PhysicalGraph(exp)
     lay = g.lay
-    kin, stp, W, law, learner = g.kin, g.stp, g.kin.W, exp.law, exp.learner
+    kin, stp, W, learner = g.kin, g.stp, g.kin.W, exp.learner
     nv, n, k, L, PL = g.nv, g.n, g.k, len(lay.blocks), lay.n_learned
-    ns, spc = stp.ns, stp.spc
-    refs = stp.refs
+    spc, refs = stp.spc, stp.refs
     state = ca.MX.sym("state", lay.n_state)
-    data = ca.MX.sym("data", lay.n_data + 3 * n * len(refs))
-    params = ca.MX.sym("params", lay.n_params + kin.n_world)  # the world vector last
+    data = ca.MX.sym("data", lay.n_data + 3 * n * len(refs) + 2)  # the cycle's n, ns last
+    params = ca.MX.sym("params", lay.n_params + kin.n_world + 3)  # the worlds last
     Pm = g.n_model
     theta, theta_m, x0 = state[:PL], state[PL:PL + Pm], state[PL + Pm:]
     kp, kd, targets, rates, damping = split_params(lay, params[:lay.n_params])[:5]
-    world = params[lay.n_params:]
+    world = params[lay.n_params:lay.n_params + kin.n_world]
+    n_in, ns_in = data[-2], data[-1]  # this cycle's samples (n: the graph's capacity)
+    design = ca.vertcat(n_in, ns_in, params[lay.n_params + kin.n_world:])
     sens, (P, Pv, Pa), _, _ = desired_from_data(lay, theta, data)
     R = [P, Pv, Pa]
     for j, i in enumerate(refs):  # a referenced joint's feedback and phase follow samples
@@ -290,29 +411,33 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
     p_, pv_, pa_, lab_ = (ca.SX.sym(s, nv if s != "l" else 1) for s in ("p", "v", "a", "l"))
     qd_, vd_, ad_ = kin.complete(*kin.labelled(p_, pv_, pa_, lab_))
     grid = ca.Function("grid", [p_, pv_, pa_, lab_], [ca.vertcat(*kin.com_x(qd_, vd_, ad_))])
-    labels = ca.DM([(i // ns) % 2 for i in range(spc * ns)]).T
-    G = grid.map(spc * ns, "serial")(R[0][:, :spc * ns], R[1][:, :spc * ns],
-                                      R[2][:, :spc * ns], labels)
-    phase_bad = ca.MX(0)
-    for si in range(spc):
-        xs = G[0, si * ns:(si + 1) * ns]
-        phase_bad = ca.fmax(phase_bad, ca.mmin(xs[:, 1:] - xs[:, :ns - 1]) <= 0)
-    pad = ca.DM.zeros(1, n - spc * ns)
-    consts = ca.vertcat(*[ca.vec(M) for M in (P, Pv, Pa, *R)],
-                        *[ca.horzcat(G[c, :], pad).T for c in range(3)])
+    # (only the cycle's spc * ns samples: zeros after them)
+    none = ca.Function("no_grid", [p_, pv_, pa_, lab_], [ca.DM.zeros(3)])
+    grid_or_not = ca.Function.conditional("grid_or_not", [none], grid)
+    at = ca.DM(np.arange(n)).T
+    labels = ca.fmod(ca.floor(at / ns_in), 2)
+    G = grid_or_not.map(n, "serial")(at < spc * ns_in, R[0], R[1], R[2], labels)
+    # the grid must increase within each walk step
+    after = ca.DM(np.arange(1, n)).T
+    inside = ca.logic_and(after < spc * ns_in, ca.fmod(after, ns_in) != 0)
+    phase_bad = ca.mmax(ca.if_else(inside, (G[0, 1:] - G[0, :n - 1]) <= 0, 0))
+    consts = ca.vertcat(*[ca.vec(M) for M in (P, Pv, Pa, *R)], *[G[c, :].T for c in range(3)])
     S0 = ca.vertcat(x0, 0, 0, ca.if_else(phase_bad, stop_code("phase"), 0), 0, np.inf, 0, np.inf,
                     -np.inf, 0, 0, ca.DM.zeros(k), ca.DM.zeros(g.sizes["grad"]),
                     ca.DM.zeros(g.sizes["hess"]))
     srows = ca.vertcat(*[ca.vec(sens[l][c].T) for l in range(L) for c in range(3)]) if L \
         else ca.MX.zeros(0)
-    S0 = ca.vertcat(S0, ca.DM.zeros(Pm + Pm * Pm))
-    S, rows = g.steps_function()(S0, consts, kp, kd, targets, srows, world, theta_m)
-    st, rw = unpack(S, g.sizes.items()), unpack(rows, row_fields(nv))
+    S0 = ca.vertcat(S0, ca.DM.zeros(g.n_state - g.acc_start + Pm + Pm * Pm + 1))  # (count,
+    # the metrics' sums)
+    args = (S0, ca.vertcat(consts, kp, kd, targets, srows, world, theta_m, design))
+    if full:
+        S, rows = g.steps_function(True)(*args)
+    else:
+        S = g.steps_function(False)(*args)
+    st = unpack(S, g.sizes.items())
     ended = st["n_imp"] >= spc
     stop = ca.if_else(ca.logic_and(st["stop"] == 0, 1 - ended), stop_code("touchdown"), st["stop"])
-    valid = rw["valid"]
-    m = ca.sum2(valid)
-    n_max = g.n_max
+    m = st["count"]
     # the update (eq. 3.6): the sums accumulated over the steps with the sensitivity rows of
     # the samples nearest the steps' phases
     theta_next = theta
@@ -322,35 +447,28 @@ def physical_cycle_function(exp, plant=None, full: bool = False,
         step = fel_update(CASADI, theta, g_, hess, rates, learner.is_goal, learner.update,
                           damping)
         theta_next = ca.if_else(stop == 0, step, theta)
-    # metrics (feltool.engines.python.cycle_outcome and contact_metrics over the steps run)
-    vrow = ca.repmat(valid, nv, 1)
-    finite = (ca.sum1(ca.sum2(ca.fabs(rw["q"]) * vrow)) + ca.sum1(ca.fabs(st["q"]))) < np.inf
+    # metrics (feltool.engines.python.cycle_outcome and contact_metrics over the steps run,
+    # as feltool.engines.compiled.graph.cycle_stats)
+    finite = (st["abs_q"] + ca.sum1(ca.fabs(st["q"]))) < np.inf
     hits = ca.MX.zeros(2 * nv)  # the joints' limits are not checked; the motors' torques are
     for j, i in enumerate(W.motor_v):
         hits[nv + int(i)] = st["hits"][j]
-    stats = [cycle_stats(law, valid, ca.vertcat(rw["q"], rw["v"]), rw["qd"], rw["U"],
-                         rw["Urows"], rw["Uerr"], rw["err"] * valid, hits, finite, valid)]
-    stab = np.flatnonzero(law.stabilizing).tolist()
-    cum = ca.cumsum(rw["impact"].T).T
-    steps_at, lengths = [], []
-    for t in range(spc):
-        hit = rw["impact"] * (ca.fabs(cum - (t + 1)) < 0.5)
-        steps_at.append(ca.sum2(hit * ca.DM(np.arange(1, n_max + 1)).T))
-        lengths.append(ca.sum2(hit * rw["length"]))
-    C = ca.DM(law.C)
-    if not stab and refs:
-        err_rows = [(C[i, :] @ rw["q"]) - rw["r"][i, :] for i in refs]
-    else:
-        err_rows = [(C[i, :] @ rw["q"]) - targets[i] for i in stab]
-    sq = sum(ca.sum2(wrap(CASADI, e_) ** 2 * valid) for e_ in err_rows) if err_rows else ca.MX(0)
-    stab_rms = ca.sqrt(sq / (m * len(err_rows))) if err_rows else ca.MX(0)
+    stab = g.stab
+    fb_stab = ca.sum1((st["abs_urows"] / m)[stab]) if stab else ca.MX(0)
+    stats = [st["abs_u"] / m, ca.sqrt(st["dq2"] / m), st["max_err"], st["max_speed"], fb_stab,
+             ca.sum1(st["abs_uerr"] / m), finite, hits]
+    n_err = g.sizes["stab_sq"]
+    sq = sum(st["stab_sq"][i] for i in range(n_err)) if n_err else ca.MX(0)
+    stab_rms = ca.sqrt(sq / (m * n_err)) if n_err else ca.MX(0)
+    steps_at = [st["at"][t] for t in range(spc)]
+    lengths = [st["lengths"][t] for t in range(spc)]
     n_steps = st["n_imp"]
     nan = ca.MX(np.nan)
     contact = [st["min_fn"], st["max_ratio"],
                ca.if_else(st["min_clear"] < np.inf, st["min_clear"], nan),
                ca.if_else(n_steps > 0, st["max_imp_ratio"], nan), st["energy"],
                ca.if_else(n_steps > 0, st["length"] / n_steps, nan), st["length"], n_steps,
-               m * stp.dt, ca.sum2(rw["work"]), stab_rms]
+               m * stp.dt, st["work"], stab_rms]
     stats += [stop, m, *steps_at, *lengths, *contact]
     theta_m_next = theta_m
     if Pm:  # the model correction's and biases' Levenberg-Marquardt step
@@ -378,7 +496,8 @@ def _fel_step(kin: Kin, lay, exp, k: int) -> ca.Function:
     nv = kin.nv
     qs, vs, as_ = (ca.SX.sym(s, nv) for s in ("q", "v", "a"))
     ls, Am, e = ca.SX.sym("l"), ca.SX.sym("A", k * nv), ca.SX.sym("e", nv)
-    tau = kin.rnea(qs, vs, as_)
+    gk = ca.SX.sym("g", 3)  # the known model's gravity
+    tau = kin.rnea(qs, vs, as_, gk)
     Gc = kin.chain(qs, ls)
     cols = [i for i, _ in lay.blocks]
     d = [ca.mtimes(ca.jacobian(tau, z), Gc[:, i]) for z in (qs, vs, as_) for i in cols]
@@ -389,5 +508,5 @@ def _fel_step(kin: Kin, lay, exp, k: int) -> ca.Function:
         em = ca.mtimes(Amat, e)
     svals = ca.vertcat(*[ca.dot(di, em) for di in d])
     gvals = ca.vertcat(*[ca.dot(da, db) for da in d for db in d])
-    return ca.Function("fel_step", [qs, vs, as_, ls, Am, e], [svals, gvals])
+    return ca.Function("fel_step", [qs, vs, as_, ls, Am, e, gk], [svals, gvals])
 

@@ -12,8 +12,7 @@ from feltool.control.ops import CASADI
 from feltool.dynamics.symbolic import (
     symbolic_center_of_mass,
     symbolic_frame_kinematics,
-    symbolic_rnea,
-    symbolic_rnea_parametric,
+    symbolic_rnea_gravity,
     symbolic_rnea_world,
 )
 from feltool.engines.compiled.graph import (
@@ -23,6 +22,28 @@ from feltool.engines.compiled.graph import (
 
 #: Bisection steps that locate a touchdown inside a sub-step (h / 2^60: far below 1e-12 s).
 BISECTIONS = 60
+
+
+#: The ``design`` input of a physical walker's step: the cycle's samples n and samples per
+#: walk step ns, and the known model's linear gravity (3) [m/s^2].
+DESIGN = 5
+
+#: A walk step's duration the graph holds at least, in [s] (:func:`capacity`).
+STEP_CAPACITY_S = 1.0
+
+
+def capacity(exp) -> int:
+    """The samples per cycle a physical walker's graph holds: per walk step the samples of
+    :data:`STEP_CAPACITY_S` at the control rate, doubled until the experiment's own fit, times
+    the steps per cycle. It depends on the rate and the steps per cycle only (not on the
+    design's period): every design of a walker whose steps last up to a second shares one
+    build."""
+    spc = exp.hybrid.walker.steps_per_cycle
+    ns = exp.primitives.n_steps // spc
+    cap = int(np.ceil(STEP_CAPACITY_S / exp.hybrid.dt - 1e-9))
+    while cap < ns:
+        cap *= 2
+    return spc * cap
 
 
 #: What stopped a cycle (0: nothing).
@@ -66,19 +87,21 @@ class Kin:
         self.bx, self.bz = int(W.base_v[0]), int(W.base_v[1])
         self.bq0, self.bq1 = int(W.base_q[0]), int(W.base_q[1])
         q, v, a, tau = (ca.SX.sym(s, nv) for s in ("q", "v", "a", "tau"))
-        rnea = symbolic_rnea(model)
+        g_known = ca.SX.sym("g_known", 3)
+        # the known model's gravity is an input (a slope is a design's, not the graph's)
+        rnea = symbolic_rnea_gravity(model)
         self.rnea = rnea
-        M = ca.jacobian(rnea(q, v, a), a)
-        self.M = ca.Function("M", [q], [ca.substitute(M, ca.vertcat(v, a),
-                                                      ca.DM.zeros(2 * nv))])
+        M = ca.jacobian(rnea(q, v, a, g_known), a)
+        self.M = ca.Function("M", [q], [ca.substitute(M, ca.vertcat(v, a, g_known),
+                                                      ca.DM.zeros(2 * nv + 3))])
         # the model correction's regressor (learning.model): Y = d RNEA / d pi, its columns
         learner = exp.model_learner
         self.n_pi = learner.n_pi if getattr(learner, "walker", False) else 0
         if self.n_pi:
             pi_s = ca.SX.sym("pi", 10 * (model.njoints - 1))
-            Y = ca.jacobian(symbolic_rnea_parametric(model)(q, v, a, pi_s), pi_s)
+            Y = ca.jacobian(symbolic_rnea_world(model)(q, v, a, pi_s, g_known), pi_s)
             Y = ca.substitute(Y, pi_s, ca.DM.zeros(pi_s.shape[0]))[:, list(learner.columns)]
-            self.regressor = ca.Function("regressor", [q, v, a], [ca.densify(Y)])
+            self.regressor = ca.Function("regressor", [q, v, a, g_known], [ca.densify(Y)])
         # the plant: RNEA of the world's parameters
         self.n_world = world_size(model)
         w = ca.SX.sym("w", self.n_world)
@@ -212,13 +235,18 @@ def stop_code(code: str):
 
 
 class Step:
-    """The control step of a physical walker (MX, conditional on the cycle still running)."""
+    """The control step of a physical walker (MX, conditional on the cycle still running).
+
+    ``n`` is the graph's capacity in samples per cycle (:func:`capacity`), ``ns`` per walk
+    step; a cycle's own numbers of samples are inputs (the ``design`` input of
+    :class:`Control`), so one build serves every design of the walker."""
 
     def __init__(self, exp, kin: Kin):
         self.kin = kin
         loop, W = exp.hybrid, kin.W
         self.nv, self.k = kin.nv, W.B.shape[1]
-        self.n, self.spc = exp.primitives.n_steps, W.steps_per_cycle
+        self.spc = W.steps_per_cycle
+        self.n = capacity(exp)
         self.ns = self.n // self.spc
         self.dt, self.substeps = loop.dt, loop.substeps
         self.refs = sorted(loop.reference)
@@ -309,14 +337,17 @@ class Step:
                             length])
 
 
-def _interp_index(xc, x):
-    """``np.interp(xc, x, arange(len(x)))`` for an increasing grid ``x`` (SX): held at the
-    ends, linear in between."""
-    ns = x.shape[0]
-    lo, hi = x[:ns - 1], x[1:]
-    inside = (xc >= lo) * (xc < hi)
-    f = ca.sum1(inside * (ca.DM(np.arange(ns - 1)) + (xc - lo) / (hi - lo)))
-    return f + (xc >= x[ns - 1]) * (ns - 1)
+def _interp_index(xc, x, ns):
+    """``np.interp(xc, x[:ns], arange(ns))`` for a grid ``x`` increasing in its first ``ns``
+    entries (``ns`` symbolic; the entries after them are not read): held at the ends, linear
+    in between."""
+    cap = x.shape[0]
+    lo, hi = x[:cap - 1], x[1:]
+    j = ca.DM(np.arange(cap - 1))
+    inside = ca.logic_and(ca.logic_and(xc >= lo, xc < hi), j < ns - 1)
+    f = ca.sum1(ca.if_else(inside, j + (xc - lo) / (hi - lo), 0.0))
+    last = x[ca.fmin(ca.fmax(ns - 1, 0), cap - 1)]
+    return f + (xc >= last) * (ns - 1)
 
 
 def _lerp(M, position, n: int):
@@ -356,23 +387,22 @@ class Control:
         kp, kd, targets = (ca.MX.sym(s, nv) for s in ("kp", "kd", "targets"))
         w = ca.MX.sym("w", kin.n_world)
         theta_m = ca.MX.sym("theta_m", self.n_model())
+        design = ca.MX.sym("design", DESIGN)
+        n_in, ns_in, g_known = design[0], design[1], design[2:5]
         arrays = [ca.reshape(consts[c * nv * n:(c + 1) * nv * n], nv, n) for c in range(6)]
         P, Pv, Pa, R, Rv, Ra = arrays
         grid = [consts[6 * nv * n + c * n:6 * nv * n + (c + 1) * n] for c in range(3)]
         s_idx = ca.fmod(n_imp, spc)
         label = ca.fmod(n_imp, 2)
-        i0 = s_idx * ns
-        seg = [ca.MX.zeros(ns) for _ in range(3)]
-        for si in range(spc):  # the walk step's grids
-            for c in range(3):
-                seg[c] = ca.if_else(s_idx == si, grid[c][si * ns:(si + 1) * ns], seg[c])
-        x, xv, xa = seg
+        i0 = s_idx * ns_in
+        pick = ca.fmin(i0 + ca.DM(np.arange(ns)), n - 1)  # the walk step's grids
+        x, xv, xa = (grid[c][pick] for c in range(3))
         xc, xc_rate, _ = kin.com_x(q, v, ca.MX.zeros(nv))
-        f = _interp_index(xc, x)
-        x_rate = _lerp(xv.T, f, ns)
+        f = _interp_index(xc, x, ns_in)
+        x_rate = _lerp(xv.T, f, ns_in)
         rate = ca.if_else(x_rate > 1e-9, xc_rate / x_rate, 1.0)
-        xa_f = _lerp(xa.T, f, ns)
-        lerp = lambda M: _lerp(M, i0 + f, n)  # noqa: E731
+        xa_f = _lerp(xa.T, f, ns_in)
+        lerp = lambda M: _lerp(M, i0 + f, n_in)  # noqa: E731
         p, pv, pa = lerp(P), rate * lerp(Pv), rate**2 * lerp(Pa) + phase_acc * lerp(Pv)
         rp, rpv = lerp(R), rate * lerp(Rv)
         rpa = rate**2 * lerp(Ra) + phase_acc * lerp(Rv)
@@ -387,9 +417,9 @@ class Control:
         u_fb, u_rows, u_err = feedback(CASADI, sym_law, q, v, r, rd, loop.error_rows)
         Mq = kin.M(q)
         A = kin.allocation(q, Mq)
-        tau_w = kin.rnea(qd, vd, ad) + u_fb
+        tau_w = kin.rnea(qd, vd, ad, g_known) + u_fb
         if kin.n_pi:  # the learned model correction Y theta_pi (feltool.learning.walker_model)
-            tau_w = tau_w + ca.mtimes(kin.regressor(qd, vd, ad), theta_m[:kin.n_pi])
+            tau_w = tau_w + ca.mtimes(kin.regressor(qd, vd, ad, g_known), theta_m[:kin.n_pi])
         u = ca.mtimes(A, tau_w)
         if self.n_model() > kin.n_pi:  # the learned motor biases
             u = u + theta_m[kin.n_pi:]
@@ -407,7 +437,7 @@ class Control:
         # the metric's largest error: forward (not reference) desired against the system
         err = controlled_error(law, symbolic_reference(law, qd, vd, targets)[0], q)
         return ca.Function("control", [q, v, phase_acc, n_imp, consts, kp, kd, targets, w,
-                                       theta_m],
+                                       theta_m, design],
                            [tau, u, over, qd, vd, ad, r, u_fb, u_rows, u_err, ca.vec(A), inert,
                             phase_acc_next, jj, label, err, a_now, F_now])
 
