@@ -108,6 +108,19 @@ class PhysicalWalker:
         ad[[bx, bz]] = -(J @ ad + c.drift(qd, vd, self.stance))
         return qd, vd, ad
 
+    def anchored(self, q: np.ndarray, v: np.ndarray, contact: Contact
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """``(q, v)`` with the base translated so that ``contact``'s (a plant's) stance foot is
+        at the origin with zero velocity; the pitch and the joints unchanged."""
+        q, v = q.copy(), v.copy()
+        p, = contact.foot_positions(q, self.stance)
+        q[self.base_q[0]] -= p[0]
+        q[self.base_q[1]] -= p[1]
+        vf = contact.jacobian(q, self.stance) @ v
+        v[self.base_v[0]] -= vf[0]
+        v[self.base_v[1]] -= vf[1]
+        return q, v
+
     def labelled(self, qd: np.ndarray, vd: np.ndarray, ad: np.ndarray, label: int
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The RMPs' values in the current labels: with an even ``steps_per_cycle`` the RMPs
