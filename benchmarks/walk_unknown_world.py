@@ -9,7 +9,11 @@ the known model):
 * ``payload``: a point mass of 10 % of the robot's total mass at the torso body's centre of
   mass;
 * ``mass``: every body's mass and rotational inertia +20 % (``{kind: mass, scale: 1.2}``);
-* ``slope``: a 0.03 rad downhill slope (gravity tilted).
+* ``slope``: a 0.03 rad downhill slope (gravity tilted; on the compass gait, whose known model
+  walks a 0.03 rad slope, 0.03 rad steeper).
+
+``--walkers compass_gait --worlds mass slope``: the compass gait where the worlds apply (it
+has no torso for the payload).
 
 The learners: the shipped trajectory FEL (the torso's RMP) and, per ``--learner``, classic FEL
 of the model (``learning.model``: the regressor's inertial-parameter correction and/or a
