@@ -196,8 +196,8 @@ def main() -> None:
     tmp = tempfile.TemporaryDirectory() if args.designs is None else None
     out = Path(tmp.name) if tmp else args.designs
     out.mkdir(parents=True, exist_ok=True)
-    lines = ["| walker | world | learner | seed | walks every step after the change | torso RMS max after the "
-             "change [rad] | feedback: change cycle → last [N m] | ratio last / change |",
+    lines = ["| walker | world | learner | seed | walks every step after the change | torso "
+             "RMS max after the change [rad] | feedback: change cycle → last [N m] | ratio last / change |",
              "|---|---|---|---|---|---|---|---|"]
     for walker in args.walkers:
         for world in args.worlds or ["payload", "slope"]:

@@ -20,6 +20,7 @@ from feltool.engines.compiled.graph import (
     controlled_error,
     symbolic_reference,
 )
+from feltool.walking.walker import same_kinematics
 
 #: Bisection steps that locate a touchdown inside a sub-step (h / 2^60: far below 1e-12 s).
 BISECTIONS = 60
@@ -49,16 +50,6 @@ def world_vector(plant) -> np.ndarray:
         extra = [np.asarray(x, float) for x in (plant.viscous, plant.coulomb,
                                                  plant.coulomb_velocity, plant.motor_gain)]
     return np.concatenate(pi + [np.asarray(m.gravity.linear, float)] + extra)
-
-
-def same_kinematics(a, b) -> bool:
-    """Whether two models of the same joints place their joints and frames alike."""
-    if a.njoints != b.njoints or len(a.frames) != len(b.frames):
-        return False
-    return (all(np.array_equal(a.jointPlacements[j].homogeneous, b.jointPlacements[j].homogeneous)
-                for j in range(a.njoints))
-            and all(np.array_equal(fa.placement.homogeneous, fb.placement.homogeneous)
-                    for fa, fb in zip(a.frames, b.frames)))
 
 
 class Kin:
