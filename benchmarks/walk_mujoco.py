@@ -37,19 +37,39 @@ WINDOW_S = 0.04  # after each touchdown
 
 
 def overrides(config: Path, start: str) -> list[str]:
-    """The ``--set`` overrides of a start."""
+    """The ``--set`` overrides of a start (``fixed``: the designed start, nothing learned)."""
     if start == "shipped":
         return []
     probe = load_experiment(config)
     out = [f"joints.{j}.learn.init=demo" for j in probe.learned_joints]
     out += [f"joints.{m}.learn={{init: demo}}" for m in probe.hybrid.walker.motor_names
             if m not in probe.learned_joints]
+    if start == "fixed":
+        out += ["learning.rates.weights=0", "learning.rates.gauss_newton=0"]
     return out
 
 
-def one(job: tuple[str, str, int, int]) -> dict:
-    config, start, seed, cycles = job
-    exp = load_experiment(config, overrides(Path(config), start))
+def soften(exp, timeconst: float | None) -> None:
+    """The contact's stiffness: MuJoCo's ``solref`` time constant [s] of the floor and the feet
+    (its damping ratio kept; MuJoCo needs at least two timesteps, ``sim.substeps`` sets the
+    timestep). None: as compiled (feltool.robot.mujoco.TIMECONST)."""
+    if timeconst is None:
+        return
+    m = exp.hybrid.sim.model
+    if timeconst < 2.0 * m.opt.timestep - 1e-12:
+        raise SystemExit(f"--timeconst {timeconst}: below two MuJoCo timesteps "
+                         f"({m.opt.timestep} s); raise --substeps")
+    m.geom_solref[:, 0] = timeconst
+
+
+def one(job: tuple) -> dict:
+    config, start, seed, cycles = job[:4]
+    timeconst, substeps = (job[4], job[5]) if len(job) > 4 else (None, None)
+    over = overrides(Path(config), start)
+    if substeps is not None:
+        over.append(f"sim.substeps={substeps}")
+    exp = load_experiment(config, over)
+    soften(exp, timeconst)
     share: dict[str, float] = {}
     profile: list[float] = []
 
@@ -69,6 +89,8 @@ def one(job: tuple[str, str, int, int]) -> dict:
     fb = [r["fb_abs_mean_error"] for r in res.rows]
     walk = res.summary.get("walking") or {}
     return {"config": Path(config).stem, "start": start, "seed": seed,
+            "timeconst": float(exp.hybrid.sim.model.geom_solref[0, 0]),
+            "substeps": exp.config.sim.substeps, "rate_hz": exp.config.sim.rate_hz,
             "cycles_run": len(fb), "walked": bool(walk.get("walked")) and len(fb) == cycles,
             "reason": walk.get("reason") or res.summary.get("reason"),
             "torso_rms": walk.get("stabilized_rms_last_rad"),
@@ -107,6 +129,23 @@ def summary(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def stiffness_table(rows: list[dict]) -> str:
+    """The contact-stiffness experiment's rows: per walker and solref time constant, the
+    feedback of the first and last cycles from the design (nothing learned) and where the
+    last cycle's is."""
+    out = ["| walker | solref time constant [ms] | MuJoCo timestep [ms] | walks every step | "
+           "feedback cycle 1 [N m] | last [N m] | share of last in 40 ms after touchdowns | "
+           "last cycle in 25 bins [N m] |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        walked = "yes" if r["walked"] else f"no ({r['reason']})"
+        share = (f"{r['impact_share_last']:.2f}" if r["impact_share_last"] is not None else "-")
+        dt_ms = 1e3 / (r["rate_hz"] * r["substeps"])
+        out.append(f"| {r['config']} | {1e3 * r['timeconst']:.3g} | {dt_ms:.3g} | {walked} | "
+                   f"{r['fb_first']:.3g} | {r['fb_last']:.3g} | {share} | "
+                   + " ".join(f"{b:.2g}" for b in r["profile"]) + " |")
+    return "\n".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0-9")
@@ -116,7 +155,22 @@ def main() -> None:
     ap.add_argument("--starts", nargs="+", default=["shipped", "designed"],
                     choices=["shipped", "designed"])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "walk_mujoco.md"))
+    ap.add_argument("--stiffness", type=float, nargs="+", metavar="TIMECONST", default=None,
+                    help="instead: the contact-stiffness experiment, the designed start with "
+                    "nothing learned (start 'fixed', seed 0, --cycles) at each solref time "
+                    "constant [s] (4 substeps; 8 below 1 ms; --substeps: all alike)")
+    ap.add_argument("--substeps", type=int, default=None, help="with --stiffness: MuJoCo "
+                    "steps per control step")
     args = ap.parse_args()
+    if args.stiffness:
+        jobs = [(c, "fixed", 0, args.cycles, tc, args.substeps or (8 if tc < 1e-3 else 4))
+                for c in args.configs for tc in args.stiffness]
+        with ProcessPoolExecutor(args.workers) as pool:
+            rows = list(pool.map(one, jobs))
+        print(stiffness_table(rows))
+        Path(args.out).with_name("walk_mujoco_stiffness.json").write_text(
+            json.dumps(rows, indent=1))
+        return
     a, _, b = args.seeds.partition("-")
     seeds = range(int(a), int(b or a) + 1)
     # the designed start draws nothing at random: every seed is the same run, run once

@@ -9,7 +9,11 @@ the known model):
 * ``payload``: a point mass of 10 % of the robot's total mass at the torso body's centre of
   mass;
 * ``mass``: every body's mass and rotational inertia +20 % (``{kind: mass, scale: 1.2}``);
-* ``slope``: a 0.03 rad downhill slope (gravity tilted).
+* ``slope``: a 0.03 rad downhill slope (gravity tilted; on the compass gait, whose known model
+  walks a 0.03 rad slope, 0.03 rad steeper).
+
+``--walkers compass_gait --worlds mass slope``: the compass gait where the worlds apply (it
+has no torso for the payload).
 
 The learners: the shipped trajectory FEL (the torso's RMP) and, per ``--learner``, classic FEL
 of the model (``learning.model``: the regressor's inertial-parameter correction and/or a
@@ -69,13 +73,20 @@ def world_event(world: str, exp) -> dict:
     raise ValueError(world)
 
 
-def overrides(walker: str, world: str, learner: str) -> list[str]:
-    """The ``--set`` overrides of one case."""
-    probe = load_experiment(ROOT / "configs" / "gaits" / f"{walker}.yaml",
-                            ["walking.poincare=false"])
+def config_path(walker: str) -> Path:
+    """The shipped config of ``walker``."""
+    return ROOT / "configs" / "gaits" / f"{walker}.yaml"
+
+
+def overrides(walker: str, world: str, learner: str, config: Path | None = None,
+              extra: list[str] | None = None) -> list[str]:
+    """The ``--set`` overrides of one case (``config``: another config of the walker, default
+    its shipped one; ``extra``: overrides first, e.g. the known model's robot or gravity)."""
+    extra = list(extra or [])
+    probe = load_experiment(config or config_path(walker), extra + ["walking.poincare=false"])
     learned = probe.learned_joints
     ev = json.dumps(world_event(world, probe))
-    return (["walking.poincare=false", "backend=compiled", f"events=[{ev}]"]
+    return (extra + ["walking.poincare=false", "backend=compiled", f"events=[{ev}]"]
             + [f"joints.{j}.learn.init=demo" for j in learned] + LEARNERS[learner])
 
 
@@ -94,16 +105,20 @@ def exact_correction(exp, world: str):
     return lambda qd, vd, ad: pin.rnea(plant, dp, qd, vd, ad) - pin.rnea(known, dk, qd, vd, ad)
 
 
-def run_case(walker: str, world: str, learner: str, seed: int, cycles: int) -> dict:
+def run_case(walker: str, world: str, learner: str, seed: int, cycles: int,
+             config: Path | None = None, extra: list[str] | None = None) -> dict:
     """One seed of one case: its per-cycle feedback and the acceptance's numbers. Learner
     ``exact`` (the experiment behind the table's "why"): the plant's exact inverse model in the
-    feedforward from the change on (Python engine: the correction is a hook of its loop)."""
-    over = overrides(walker, world, learner if learner != "exact" else "trajectory")
+    feedforward from the change on (Python engine: the correction is a hook of its loop).
+    ``config`` (default the walker's shipped one) and ``extra`` overrides: the gait designed in
+    the changed world (benchmarks/walk_unknown_world_cause.py)."""
+    over = overrides(walker, world, learner if learner != "exact" else "trajectory", config,
+                     extra)
     if learner == "exact":  # nothing learned: the feedforward's floor
         over = [o for o in over if o != "backend=compiled"] + ["backend=pinocchio",
                                                                 "learning.rates.weights=0",
                                                                 "learning.rates.gauss_newton=0"]
-    exp = load_experiment(ROOT / "configs" / "gaits" / f"{walker}.yaml", over)
+    exp = load_experiment(config or config_path(walker), over)
     progress = None
     if learner == "exact":
         oracle = exact_correction(exp, world)
@@ -117,10 +132,17 @@ def run_case(walker: str, world: str, learner: str, seed: int, cycles: int) -> d
     torso = [r.get("stabilized_rms", np.nan) for r in res.rows[CHANGE - 1:]]
     walk = res.summary.get("walking", {})
     steps = walk.get("steps", 0)
+    spc = exp.hybrid.walker.steps_per_cycle
     walked = (not res.summary["diverged"] and len(res.rows) == cycles
-              and steps == cycles * exp.hybrid.walker.steps_per_cycle)
+              and steps == cycles * spc)
+    # the steps of the cycles from the change on (a cycle's distance / its mean step length)
+    after = sum(int(round(r["distance"] / r["step_length"])) for r in res.rows[CHANGE - 1:]
+                if r.get("step_length", 0) > 0)
+    walked_after = (not res.summary["diverged"] and len(res.rows) == cycles
+                    and after == (cycles - CHANGE + 1) * spc)
     return {"walker": walker, "world": world, "learner": learner, "seed": seed,
-            "walked": bool(walked), "reason": res.summary.get("diverged_reason"),
+            "walked": bool(walked), "walked_after_change": bool(walked_after),
+            "reason": res.summary.get("diverged_reason"),
             "cycles": len(res.rows), "fb": fb,
             "torso_rms_max": float(np.nanmax(torso)) if torso else float("nan"),
             "ratio": fb[-1] / fb[CHANGE - 1] if len(fb) >= CHANGE else float("nan"),

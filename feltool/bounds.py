@@ -46,6 +46,7 @@ MAX_ANGLE = 1.0e4           # angles and positions of demos, targets, postures [
 MAX_LENGTH = 1.0e3          # centre-of-mass offsets [m]
 MAX_MASS = 1.0e6            # masses of plant overrides, payloads, events [kg]
 MAX_MASS_SCALE = 1.0e6      # plant.bodies.*.mass_scale [-]
+MAX_LENGTH_SCALE = 100.0    # plant.bodies.*.length_scale [-]
 MAX_WEIGHT_SCALE = 100.0    # learn.weight_scale [-]
 MAX_DAMPING = 1.0e6         # Levenberg-Marquardt damping [-]
 

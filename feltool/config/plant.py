@@ -14,6 +14,7 @@ from pydantic import (
 
 from feltool.bounds import (
     MAX_GAIN,
+    MAX_LENGTH_SCALE,
     MAX_MASS,
     MAX_MASS_SCALE,
 )
@@ -35,6 +36,12 @@ class BodyOverride(Strict):
         "Rotational inertia about the centre of mass, [ixx, ixy, ixz, iyy, iyz, izz] in "
         "[kg m^2] (URDF order); positive semi-definite, principal moments satisfying the "
         "triangle inequality (docs/robots.md).")
+    length_scale: PositiveFloat | None = Field(None, le=MAX_LENGTH_SCALE, description="Scale "
+        "the body's length by this factor about its joint's origin [-]: the placements of the "
+        "joints it carries (its children) and of its frames (e.g. a foot at its end) and its "
+        "centre of mass scale by it, its rotational inertia about the centre of mass by its "
+        "square (the same mass along a longer body); its mass stays. Applied first: `mass`, "
+        "`mass_scale`, `com` and `inertia` act on the lengthened body.")
 
     @model_validator(mode="after")
     def _one_mass(self) -> BodyOverride:

@@ -5,7 +5,9 @@ plant (``ClosedLoop.dynamics``) is what the torques act on. By default they are 
 A config's ``plant:`` block makes them differ (docs/model_learning.md):
 
 * ``robot:`` a second URDF with the same joints, and/or
-* ``bodies:`` overrides of a body's mass, centre of mass and rotational inertia,
+* ``bodies:`` overrides of a body's mass, centre of mass and rotational inertia, and of its
+  length (``length_scale``: the placements of the joints and frames it carries, its centre of
+  mass and, squared, its rotational inertia; :func:`scale_length`),
 * ``payloads:`` rigid payloads fixed to frames (added to the carrying body's inertia),
 * ``friction:`` joint friction :math:`\tau_f = d\,\dot q + c \tanh(\dot q / v_c)` that opposes
   the motion, and ``motor_gain:`` a factor :math:`k` of each commanded torque, so the plant's
@@ -66,12 +68,39 @@ def plant_robot(plant: PlantConfig, model_robot: Robot, base_dir: Path | None = 
     model = source.model.copy()
     for joint, override in plant.bodies.items():
         jid = model.getJointId(joint)
+        if override.length_scale is not None:
+            scale_length(model, jid, override.length_scale)
         model.inertias[jid] = _override(model.inertias[jid], override)
     for payload in plant.payloads:
         frame = model.frames[model.getFrameId(payload.frame)]
         jid = frame.parentJoint
         model.inertias[jid] = model.inertias[jid] + frame.placement.act(_payload_inertia(payload))
     return replace(source, name=f"{source.name} (plant)", model=model, _visual_model=None)
+
+
+def _scaled(inertia: pin.Inertia, s: float) -> pin.Inertia:
+    """``inertia``'s body ``s`` times as long: centre of mass x s, rotational inertia x s^2."""
+    return pin.Inertia(float(inertia.mass), inertia.lever * s, inertia.inertia * s * s)
+
+
+def scale_length(model: pin.Model, jid: int, s: float) -> None:
+    """Make the body moved by joint ``jid`` of ``model`` (in place) ``s`` times as long about
+    its joint's origin: the translations of its child joints' placements and of its frames'
+    placements (the frames it carries: welded links, a foot at its end) times ``s``, its
+    centre of mass times ``s`` and its rotational inertia about the centre of mass times
+    ``s^2`` (its mass unchanged; the welded links' own inertias alike)."""
+    for k in range(1, model.njoints):
+        if model.parents[k] == jid:
+            p = model.jointPlacements[k]
+            model.jointPlacements[k] = pin.SE3(p.rotation, p.translation * s)
+    for i in range(len(model.frames)):
+        f = model.frames[i]
+        if f.parentJoint != jid or f.name == model.names[jid]:
+            continue
+        f.placement = pin.SE3(f.placement.rotation, f.placement.translation * s)
+        f.inertia = _scaled(f.inertia, s)
+        model.frames[i] = f
+    model.inertias[jid] = _scaled(model.inertias[jid], s)
 
 
 def _inertia_matrix(values: list[float]) -> np.ndarray:
@@ -163,4 +192,4 @@ def make_plant(plant: PlantConfig, robot: Robot, joints: list[str], rigid: Dynam
     return FrictionPlant(rigid, d, c, vc, gain)
 
 
-__all__ = ["FrictionPlant", "make_plant", "plant_problems", "plant_robot"]
+__all__ = ["FrictionPlant", "make_plant", "plant_problems", "plant_robot", "scale_length"]

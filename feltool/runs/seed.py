@@ -61,7 +61,10 @@ def initial_state(exp: Experiment, seed: int) -> SeedState:
     Qd, Vd, _ = exp.primitives.desired(theta)
     q, v = exp.law.consistent_state(Qd[0], Vd[0])
     if exp.hybrid is not None:
-        q, v = exp.hybrid.initial_state(Qd, Vd)
+        physical = cfg.walking is not None and cfg.walking.physical
+        # a physical walker stands on its plant's stance foot (the plant's legs may differ)
+        q, v = (exp.hybrid.initial_state(Qd, Vd, exp.plant) if physical
+                else exp.hybrid.initial_state(Qd, Vd))
         settle = cfg.walking.settle_cycles if cfg.walking is not None and \
             cfg.walking.physical else 0
         if settle:  # onto the unperturbed gait's limit cycle, nothing learned or counted

@@ -119,12 +119,17 @@ class PhysicalLoop:
             R[:, i], Rv[:, i], Ra[:, i] = q[:len(P)], v[:len(P)], a[:len(P)]
         return R, Rv, Ra
 
-    def initial_state(self, P: np.ndarray, Pv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def initial_state(self, P: np.ndarray, Pv: np.ndarray, plant: Dynamics | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
         """Start on the desired trajectory, stabilized quantities on target, stance foot at the
-        origin with zero velocity."""
+        origin with zero velocity — the ``plant``'s foot when given (a plant whose legs are
+        not the model's, ``plant.bodies.*.length_scale``: the base translated onto it, the
+        joints as desired)."""
         R, Rv, _ = self._referenced(P, Pv, Pv)
         q, v = self.law.consistent_state(R[0], Rv[0])
         q, v, _ = self.walker.complete(q, v, np.zeros_like(v))
+        if plant is not None:
+            q, v = self.walker.anchored(q, v, self.walker.contact_for(plant))
         return q, v
 
     def run_cycle(self, plant: Dynamics, q: np.ndarray, v: np.ndarray, P: np.ndarray,

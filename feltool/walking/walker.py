@@ -28,6 +28,17 @@ from feltool.walking.model import WalkerModel
 from feltool.walking.pinned import fall_reason
 
 
+def same_kinematics(a: pin.Model, b: pin.Model) -> bool:
+    """Whether two models of the same joints place their joints and frames alike (a plant
+    whose bodies are only heavier, not longer)."""
+    if a.njoints != b.njoints or len(a.frames) != len(b.frames):
+        return False
+    return (all(np.array_equal(a.jointPlacements[j].homogeneous, b.jointPlacements[j].homogeneous)
+                for j in range(a.njoints))
+            and all(np.array_equal(fa.placement.homogeneous, fb.placement.homogeneous)
+                    for fa, fb in zip(a.frames, b.frames)))
+
+
 class PhysicalWalker:
     """A walker on a floating base with point feet: its contact, checks, motors and fall check.
 
@@ -108,6 +119,22 @@ class PhysicalWalker:
         ad[[bx, bz]] = -(J @ ad + c.drift(qd, vd, self.stance))
         return qd, vd, ad
 
+    def anchored(self, q: np.ndarray, v: np.ndarray, contact: Contact
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """``(q, v)`` with the base translated so that ``contact``'s (a plant's) stance foot is
+        at the origin with zero velocity; the pitch and the joints unchanged (``(q, v)`` itself
+        when its kinematics are the known model's: the foot is there already)."""
+        if contact is self.contact or same_kinematics(contact.model, self.walker.model):
+            return q, v
+        q, v = q.copy(), v.copy()
+        p, = contact.foot_positions(q, self.stance)
+        q[self.base_q[0]] -= p[0]
+        q[self.base_q[1]] -= p[1]
+        vf = contact.jacobian(q, self.stance) @ v
+        v[self.base_v[0]] -= vf[0]
+        v[self.base_v[1]] -= vf[1]
+        return q, v
+
     def labelled(self, qd: np.ndarray, vd: np.ndarray, ad: np.ndarray, label: int
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The RMPs' values in the current labels: with an even ``steps_per_cycle`` the RMPs
@@ -168,4 +195,4 @@ class PhysicalWalker:
         return fall_reason(q, v, self.fall_row, self.fall_max)
 
 
-__all__ = ["PhysicalWalker"]
+__all__ = ["PhysicalWalker", "same_kinematics"]

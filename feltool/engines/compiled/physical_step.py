@@ -19,6 +19,7 @@ from feltool.engines.compiled.graph import (
     controlled_error,
     symbolic_reference,
 )
+from feltool.walking.walker import same_kinematics
 
 #: Bisection steps that locate a touchdown inside a sub-step (h / 2^60: far below 1e-12 s).
 BISECTIONS = 60
@@ -73,10 +74,12 @@ def world_vector(plant) -> np.ndarray:
 
 
 class Kin:
-    """The walker's symbolic kinematics and dynamics (SX functions of one model): the known
-    model's (feedforward, allocation, mechanical phase, feet) and the simulated plant's, whose
-    parameters are the input ``w`` (:func:`world_vector`): its stance dynamics, impacts,
-    energy, Runge-Kutta step and the stance foot's hold."""
+    """The walker's symbolic kinematics and dynamics (SX functions): the known model's
+    (feedforward, allocation, mechanical phase, feet) and the simulated plant's, whose inertial
+    parameters, gravity and friction are the input ``w`` (:func:`world_vector`) and whose
+    kinematics (joint and foot placements) are the plant's model's: its stance dynamics,
+    impacts, energy, Runge-Kutta step, the stance foot's hold and the feet's contact checks
+    (``pfeet``)."""
 
     def __init__(self, exp):
         loop = exp.hybrid
@@ -108,7 +111,13 @@ class Kin:
         npi = 10 * (model.njoints - 1)
         pi, g = w[:npi], w[npi:npi + 3]
         visc, coul, vc, gain = (w[npi + 3 + c * nv:npi + 3 + (c + 1) * nv] for c in range(4))
-        rnea_w = symbolic_rnea_world(model)
+        # the plant's kinematics (its joints' and feet's placements: a plant whose bodies are
+        # longer, plant.bodies.*.length_scale; else the model's); its inertias come with w
+        plant = exp.plant if exp.plant is not None else exp.dynamics
+        pmodel = getattr(getattr(plant, "rigid", plant), "model", model)
+        if same_kinematics(pmodel, model):
+            pmodel = model
+        rnea_w = symbolic_rnea_world(pmodel)
         Mw = ca.jacobian(rnea_w(q, v, a, pi, g), a)
         Mq = ca.substitute(Mw, ca.vertcat(v, a), ca.DM.zeros(2 * nv))
         bq = rnea_w(q, v, ca.DM.zeros(nv), pi, g)
@@ -120,6 +129,17 @@ class Kin:
             self.feet[name] = ca.Function(
                 f"foot_{name}", [q, v], [p[[0, 2]], J[[0, 2], :], dp[[0, 2]],
                                          ca.substitute(ddp[[0, 2]], a, ca.DM.zeros(nv))])
+        #: the plant's feet (the known model's ``feet`` when its kinematics are the model's)
+        self.pfeet = self.feet
+        if pmodel is not model:
+            self.pfeet = {}
+            for name in (W.stance, W.swing):
+                fk = symbolic_frame_kinematics(pmodel, W.walker.feet[name])
+                p, J, dp, ddp = fk(q, v, a)
+                self.pfeet[name] = ca.Function(
+                    f"plant_foot_{name}", [q, v], [p[[0, 2]], J[[0, 2], :], dp[[0, 2]],
+                                                   ca.substitute(ddp[[0, 2]], a,
+                                                                 ca.DM.zeros(nv))])
         com = symbolic_center_of_mass(model)
         c, dc = com(q, v)
         acc = ca.mtimes(ca.jacobian(dc, q), v) + ca.mtimes(ca.jacobian(dc, v), a)
@@ -128,13 +148,13 @@ class Kin:
         self.Rq, self.Rv = ca.DM(Rq), ca.DM(Rv)
         self.B = ca.DM(W.B)
         # the plant's stance dynamics (KKT) and rigid impact, each one linear solve
-        _, Js, _, gam = self.feet[W.stance](q, v)
+        _, Js, _, gam = self.pfeet[W.stance](q, v)
         K = ca.blockcat([[Mq, -Js.T], [Js, ca.DM.zeros(2, 2)]])
         sol = ca.solve(K, ca.vertcat(applied - bq, -gam))
         self.stance = ca.Function("stance", [q, v, tau, w], [sol[:nv], sol[nv:]])
         self.impacts = {}
         for name in (W.stance, W.swing):
-            _, Jf, _, _ = self.feet[name](q, v)
+            _, Jf, _, _ = self.pfeet[name](q, v)
             Ki = ca.blockcat([[Mq, -Jf.T], [Jf, ca.DM.zeros(2, 2)]])
             si = ca.solve(Ki, ca.vertcat(ca.mtimes(Mq, v), ca.DM.zeros(2)))
             self.impacts[name] = ca.Function(f"impact_{name}", [q, v, w], [si[:nv], si[nv:]])
@@ -166,7 +186,7 @@ class Kin:
         nv = self.nv
         q0, v, anchor = ca.SX.sym("q", nv), ca.SX.sym("v", nv), ca.SX.sym("anchor", 2)
         w = ca.SX.sym("w", self.n_world)
-        fk, q = self.feet[foot], q0
+        fk, q = self.pfeet[foot], q0
         done = ca.SX(0)
         for _ in range(2):
             p, J, _, _ = fk(q, v)
@@ -277,11 +297,11 @@ class Step:
         ratio = ca.fabs(Fx) / Fz
         max_ratio = ca.if_else(bad_fn, max_ratio, ca.fmax(max_ratio, ratio))
         stop = ca.if_else(ca.logic_and(stop == 0, ratio > chk.friction), stop_code("friction"), stop)
-        anchor = kin.feet[W.stance](q, v)[0]
-        z0 = kin.feet[W.swing](q, v)[0][1]
+        anchor = kin.pfeet[W.stance](q, v)[0]
+        z0 = kin.pfeet[W.swing](q, v)[0][1]
         q1, v1 = kin.rk4(q, v, tau, h, a1, w)
         q1, v1 = kin.hold[W.stance](q1, v1, anchor, w)
-        sp = kin.feet[W.swing](q1, v1)[0]
+        sp = kin.pfeet[W.swing](q1, v1)[0]
         ahead = sp[0] - anchor[0]
         exempt = ca.fabs(ahead) < chk.scuff_exempt
         if chk.scuff_behind:  # the compass-gait convention: no stop behind the stance foot
@@ -306,7 +326,7 @@ class Step:
         h, anchor, st = ca.MX.sym("h"), ca.MX.sym("anchor", 2), ca.MX.sym("st", 4)
         w = ca.MX.sym("w", kin.n_world)
         qs_, vs_ = ca.SX.sym("q", nv), ca.SX.sym("v", nv)
-        height = ca.Function("height", [qs_, vs_], [kin.feet[W.swing](qs_, vs_)[0][1]])
+        height = ca.Function("height", [qs_, vs_], [kin.pfeet[W.swing](qs_, vs_)[0][1]])
         lo, hi = ca.MX(0), h
         a1 = kin.stance(q, v, tau, w)[0]  # every bisection starts from (q, v)
         for _ in range(BISECTIONS):
@@ -317,7 +337,7 @@ class Step:
         s = 0.5 * (lo + hi)
         qs, vs = kin.rk4(q, v, tau, s, a1, w)
         qs, vs = kin.hold[W.stance](qs, vs, anchor, w)
-        p, _, dp, _ = kin.feet[W.swing](qs, vs)
+        p, _, dp, _ = kin.pfeet[W.swing](qs, vs)
         stop, min_fn, max_ratio, min_clear = st[0], st[1], st[2], st[3]
         min_clear = ca.fmin(min_clear, ca.fmax(p[1], 0.0))
         stop = ca.if_else(ca.logic_and(stop == 0, dp[1] >= 0.0), stop_code("touchdown"), stop)
@@ -325,7 +345,7 @@ class Step:
         lost = kin.energy(qs, vs, w) - kin.energy(qs, v_plus, w)
         ratio = ca.if_else(I[1] > 0, ca.fabs(I[0]) / I[1], np.inf)
         length = p[0] - anchor[0]
-        trail_vz = kin.feet[W.stance](qs, v_plus)[2][1]
+        trail_vz = kin.pfeet[W.stance](qs, v_plus)[2][1]
         stop = ca.if_else(ca.logic_and(stop == 0, I[1] <= 0.0), stop_code("impulse"), stop)
         stop = ca.if_else(ca.logic_and(stop == 0, ratio > chk.friction), stop_code("impulse"), stop)
         stop = ca.if_else(ca.logic_and(stop == 0, trail_vz < -1e-9), stop_code("lift_off"), stop)
