@@ -30,6 +30,7 @@ import numpy as np
 
 from feltool.control.cycle import advance, feedback, fel_sums, fel_update, wrap
 from feltool.control.ops import CASADI
+from feltool.engines.compiled.loop_fit import fit_step
 from feltool.dynamics.symbolic import (
     symbolic_aba,
     symbolic_frame_rotation,
@@ -387,8 +388,11 @@ def cycle_function(exp, plant, full: bool = False, name: str = "cycle") -> ca.Fu
     theta_next = theta
     if L:
         errors = Uerr * ca.repmat(mask, nv, 1) if lay.masked else Uerr
-        step = fel_step(learner, lay, theta, sens, Dall, Uerr * ca.repmat(weight, nv, 1), errors,
-                        rates, damping, weight)
+        step = fit_step(exp, lay, theta, sens, (Qd, Vd, Ad), kp, kd, Dall, Uerr, rates, damping,
+                        symbolic_frames(law, exp.robot.model)) \
+            if learner.fit == "closed_loop" else \
+            fel_step(learner, lay, theta, sens, Dall, Uerr * ca.repmat(weight, nv, 1), errors,
+                     rates, damping, weight)
         theta_next = ca.if_else(finite, step, theta)
 
     # 5. metrics
