@@ -64,7 +64,7 @@ def lifted_state_sensitivity(derivatives: tuple, Kfb: np.ndarray, S: np.ndarray,
     ``U`` ``(n, nv, P)`` (the joint torques' change at fixed state: the feedforward's, and the
     feedback's through changed references).
 
-    Per step: :math:`\delta\tau = S(U_k - K^{fb}_k \delta x)`, :math:`\delta\ddot q =
+    Per step: :math:`\delta\tau = S(U_k - K^{fb}_k \delta x_k)`, :math:`\delta\ddot q =
     M^{-1}(\delta\tau - \partial_q\tau\,\delta q - \partial_{\dot q}\tau\,\delta\dot q)`,
     :math:`\delta\dot q^+ = \delta\dot q + h\,\delta\ddot q`, :math:`\delta q^+ = \delta q + h\,
     \delta\dot q^+` (``semi_implicit`` False: explicit Euler), ``substeps`` times with
@@ -82,10 +82,11 @@ def lifted_state_sensitivity(derivatives: tuple, Kfb: np.ndarray, S: np.ndarray,
     Dq, Dv, M = derivatives
     n, nv, P = U.shape
     Minv = np.linalg.inv(M)  # (n, nv, nv)
-    # the acceleration's sensitivity: a = Ax x + Minv S U
-    Ax = -np.einsum("kij,kjl->kil", Minv, S[None, :, None] * Kfb
-                    + np.concatenate([Dq, Dv], axis=2))
+    # the acceleration's sensitivity: a = Ax x_sub + Minv S (U - Kfb x), the feedback from the
+    # control step's start (held over its sub-steps), the dynamics' at each sub-step
+    Ax = -np.einsum("kij,kjl->kil", Minv, np.concatenate([Dq, Dv], axis=2))
     A, B = step_map(Ax, Minv * S[None, None, :], dt, substeps, semi_implicit)
+    A = A - np.einsum("kij,kjl->kil", B, Kfb)
     W = np.einsum("kij,kjp->kip", B, U)  # (n, 2nv, P)
     Z = np.zeros((n + 1, 2 * nv, P))
     for k in range(n):

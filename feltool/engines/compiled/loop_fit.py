@@ -56,7 +56,7 @@ def linearization(exp, blocks: tuple, frames: dict) -> ca.Function:
     Bref = ca.diag(kp) @ Ct @ dQ + ca.diag(kd) @ Ct @ dV
     U = J + T @ Bref
     S = ca.DM(np.asarray(loop.actuated, float))
-    Ax = -ca.solve(M, ca.diag(S) @ (T @ Krows) + ca.horzcat(Dq, Dv))
+    Ax = -ca.solve(M, ca.horzcat(Dq, Dv))  # the dynamics' (the feedback: held, below)
     Au = ca.solve(M, ca.diag(S))
     h, semi = loop.dt / loop.substeps, loop.integrator == "semi_implicit_euler"
     eye, zero = ca.DM.eye(nv), ca.DM.zeros(nv, nv)
@@ -70,6 +70,7 @@ def linearization(exp, blocks: tuple, frames: dict) -> ca.Function:
     A, B = a_s, b_s
     for _ in range(loop.substeps - 1):
         A, B = a_s @ A, a_s @ B + b_s
+    A = A - B @ (T @ Krows)  # the feedback from the control step's start, held
     return ca.Function("loop_linearization", [q, v, a, kp, kd, xq, xv, xa],
                        [A, B @ U, Te @ Krows, Te @ Bref])
 
