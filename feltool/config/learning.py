@@ -107,7 +107,9 @@ class LearningConfig(Strict):
         "(norm-optimal; invariant to rate_hz, period_s and basis; feltool.learning.loop_map); "
         "feedforward: the feedforward's change d u_ff / d theta itself (the step before, "
         "which assumes the feedback reports the feedforward's error at once and in full). "
-        "Walkers, per_step learning and update: gradient use feedforward.")
+        "Walkers, per_step learning, inverse-model learning (learning.model), cycles of changing "
+        "length (period events, an adaptive phase, a period of no whole number of steps) and "
+        "update: gradient use feedforward.")
     q_filter_hz: PositiveFloat | None = Field(None, description="fit: closed_loop: learn only "
         "the cycle's harmonics at or below this frequency [Hz] (a zero-phase projection of the "
         "fit over one cycle; the parameters' directions that only move higher harmonics are "

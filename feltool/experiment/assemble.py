@@ -388,7 +388,7 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
                      init, source, hybrid, plant, model_learner, fit_rms,
                      init_reference=init_reference)
-    if closed_loop_fit(cfg, hybrid, model_learner, dynamics):
+    if closed_loop_fit(cfg, hybrid, model_learner, dynamics) and not exp.phase_varies:
         learner.fit = "closed_loop"
         learner.loop = {"law": law, "S": np.asarray(actuated, float), "dt": dt,
                         "substeps": cfg.sim.substeps,
@@ -403,7 +403,8 @@ def closed_loop_fit(cfg: ExperimentConfig, hybrid, model_learner, dynamics) -> b
     """Whether the Gauss-Newton step fits through the closed loop (``learning.fit:
     closed_loop``, :mod:`feltool.learning.loop_map`): for arms (no walking or actuation
     block, plain joint coordinates) learning per cycle with update gauss_newton and no
-    inverse-model correction; the others fit the feedforward."""
+    inverse-model correction, and (the caller) cycles of one length; the others fit the
+    feedforward."""
     L = cfg.learning
     return (L.fit == "closed_loop" and L.update == "gauss_newton" and L.step == "per_cycle"
             and hybrid is None and model_learner is None and dynamics.euclidean)

@@ -30,9 +30,6 @@ def unsupported(exp) -> list[tuple[str, str]]:
                                         "(its cycle length depends on the measured motion)"))
     if exp.learner.fit == "closed_loop" and L.q_filter_hz is not None:
         out.append(("learning.q_filter_hz", "the Q-filter runs in the Python engine only"))
-    if exp.learner.fit == "closed_loop" and exp.phase_varies:
-        out.append(("learning.fit", "closed_loop with cycles of changing length runs in the "
-                                    "Python engine only (or set learning.fit: feedforward)"))
     if exp.robot.model.nq != exp.robot.model.nv:
         out.append(("robot", "the compiled engine needs joints with one coordinate each"))
     if cfg.walking is not None and cfg.walking.physical:
