@@ -105,10 +105,14 @@ def test_the_compiled_graph_takes_the_python_engine_s_step(config):
     np.testing.assert_allclose(graph, python, rtol=0, atol=1e-10 * np.abs(step).max())
 
 
-def test_both_engines_learn_the_same_curve():
+@pytest.mark.parametrize("config, sets", [(UR5, []), (STANDARD, ["period_s=1.2345"])])
+def test_both_engines_learn_the_same_curve(config, sets):
+    """The closed-loop fit on both engines, also with cycles of 123 and 124 steps (a period
+    of no whole number of steps: the compiled graph's masked steps)."""
     rows = {}
     for backend in ("pinocchio", "compiled"):
-        exp = load_experiment(UR5, [f"backend={backend}"])
+        exp = load_experiment(config, sets + [f"backend={backend}"])
+        assert exp.learner.fit == "closed_loop"
         rows[backend] = [r["fb_abs_mean_error"] for r in run_seed(exp, 0, 8).rows]
     np.testing.assert_allclose(rows["compiled"], rows["pinocchio"], rtol=1e-6)
 

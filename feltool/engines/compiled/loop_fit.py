@@ -76,16 +76,25 @@ def linearization(exp, blocks: tuple, frames: dict) -> ca.Function:
 
 
 def closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping, g_plain,
-                     frames: dict):
+                     frames: dict, mask=None):
     """The learned parameters after the closed-loop fit's step, in the graph: ``sens`` per
     learned joint ``[Xq, Xv, Xa]`` (each ``(n, P_l)``), ``desired`` ``(Qd, Vd, Ad)`` (each
     ``(nv, n)``), ``E`` the error torques ``(nv, n)``, ``g_plain`` the gradient of eq. 3.6 (the
-    goals keep its step); ``frames`` the law's symbolic frame angles."""
+    goals keep its step); ``frames`` the law's symbolic frame angles; ``mask`` ``(1, n)`` the
+    steps the cycle has (cycles of changing length: a step it does not have leaves the
+    sensitivity as it is and counts nowhere), None: all."""
     nv, n, P = lay.nv, lay.n, lay.n_learned
     Qd, Vd, Ad = desired
     XT = [ca.vertcat(*[blk[c].T for blk in sens]) for c in range(3)]  # (P, n) each
     lin = linearization(exp, lay.blocks, frames).map(n, "serial")
     A, W, Ke, TB = lin(Qd, Vd, Ad, ca.repmat(kp, 1, n), ca.repmat(kd, 1, n), *XT)
+    if mask is not None:
+        def spread(rows, cols):  # the mask of every step over its block of columns
+            return ca.kron(mask, ca.DM.ones(rows, cols))
+
+        m2 = spread(2 * nv, 2 * nv)
+        A = A * m2 + ca.repmat(ca.DM.eye(2 * nv), 1, n) * (1 - m2)
+        W, Ke, TB = W * spread(2 * nv, P), Ke * spread(nv, 2 * nv), TB * spread(nv, P)
     z, x = ca.SX.sym("z", 2 * nv, P), ca.SX.sym("x", 2 * nv, 2 * nv)
     a_k, w_k = ca.SX.sym("a", 2 * nv, 2 * nv), ca.SX.sym("w", 2 * nv, P)
     roll = ca.Function("loop_roll", [z, x, a_k, w_k], [ca.mtimes(a_k, z) + w_k,
@@ -108,16 +117,19 @@ def closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping, 
     return fel_update(CASADI, theta, grad, H, rates, is_goal, "gauss_newton", damping)
 
 
-def fit_step(exp, lay, theta, sens, desired, kp, kd, Dall, E, rates, damping, frames: dict):
+def fit_step(exp, lay, theta, sens, desired, kp, kd, Dall, E, rates, damping, frames: dict,
+             mask=None):
     """:func:`closed_loop_step` with the goals' gradient from the learned joints' derivative
     columns ``Dall`` (:func:`feltool.engines.compiled.graph.feedforward_function`'s, as
     :func:`feltool.engines.compiled.graph.fel_step` uses them)."""
     L, n = len(lay.blocks), lay.n
     deriv = [[Dall[:, [c * L + l + 3 * L * k for k in range(n)]] for c in range(3)]
              for l in range(L)]
+    if mask is not None:
+        E = E * ca.repmat(mask, lay.nv, 1)
     g_plain, _ = fel_sums(CASADI, sens, deriv, E, None)
     return closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping,
-                            g_plain, frames)
+                            g_plain, frames, mask)
 
 
 __all__ = ["closed_loop_step", "fit_step", "linearization"]
