@@ -167,4 +167,5 @@ def apply_q(signal: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
     return np.fft.irfft(F, n=signal.shape[0], axis=0)
 
 
-__all__ = ["apply_q", "error_sensitivity", "feedback_gains", "step_map", "lifted_state_sensitivity", "q_filter"]
+__all__ = ["apply_q", "error_sensitivity", "feedback_gains", "lifted_state_sensitivity",
+           "q_filter", "step_map"]

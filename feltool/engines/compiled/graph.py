@@ -12,7 +12,9 @@ One cycle, ``(state, data, params) -> (state', stats)``, built from the pieces o
    :math:`u = S(u_{ff} + u_{fb})`, :func:`feltool.control.cycle.advance` through the plant's symbolic
    ABA (friction included), joint and torque limits;
 4. the FEL sums (:func:`feltool.control.cycle.fel_sums`, per-sample vectors, no Jacobian) and the
-   update (:func:`feltool.control.cycle.fel_update`), applied only if the cycle stayed finite;
+   update (:func:`feltool.control.cycle.fel_update`), or with ``learning.fit: closed_loop`` the
+   step through the closed loop (:mod:`feltool.engines.compiled.loop_fit`), applied only if the
+   cycle stayed finite;
 5. the metrics of :func:`feltool.runs.seed` (phase-weighted means, largest errors, limit hits).
 
 ``state`` is the learned parameters and :math:`x_0`; ``params`` the gains, targets and rates,
@@ -30,13 +32,13 @@ import numpy as np
 
 from feltool.control.cycle import advance, feedback, fel_sums, fel_update, wrap
 from feltool.control.ops import CASADI
-from feltool.engines.compiled.loop_fit import fit_step
 from feltool.dynamics.symbolic import (
     symbolic_aba,
     symbolic_frame_rotation,
     symbolic_rnea,
     symbolic_rnea_parametric,
 )
+from feltool.engines.compiled.loop_fit import fit_step
 
 #: Per-cycle statistics, in order: fb_abs_mean (nv), track_err_rms (nv), then these scalars,
 #: then joint-limit hits (nv) and torque-limit hits (nv).
