@@ -45,6 +45,23 @@ def test_an_unreachable_target_is_refused_by_run_too(tmp_path, capsys):
     assert "joints.elbow.target: no actuated joint moves it" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("config, joint", [("ur5_wrist_level", "elbow_joint"),
+                                           ("panda_hand_level", "panda_joint4")])
+def test_run_refuses_a_rate_check_refuses(config, joint, tmp_path, capsys):
+    """UR5 and Panda at 50 Hz: ``feltool check`` refuses them (the stiff gains beyond the sampled
+    PD loop's bound), and ``feltool run`` refuses them the same way, before it writes anything:
+    one line per joint naming its field, exit 2."""
+    code, lines = _check(capsys, CONFIGS / f"{config}.yaml", "sim.rate_hz=50")
+    assert code == 2 and any(f"joints.{joint}.gains: sim.rate_hz 50 is too coarse" in line
+                             for line in lines), lines
+    assert all(".gains: sim.rate_hz 50 is too coarse" in line for line in lines), lines
+    code = main(["run", str(CONFIGS / f"{config}.yaml"), "--out", str(tmp_path / "r"),
+                 "--seeds", "0", "--set", "sim.rate_hz=50"])
+    out = capsys.readouterr()
+    assert code == 2 and not (tmp_path / "r").exists() and "Traceback" not in out.err
+    assert out.err.strip().splitlines() == lines
+
+
 @pytest.mark.parametrize("kp, unstable", [(4.0, True), (6.0, False)])
 def test_the_gain_bound_is_the_inverted_pendulum_s(kp, unstable, capsys):
     """Link 2 held upright by the elbow (the shoulder stiff): the upper link is an inverted

@@ -53,6 +53,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             overrides.append(f"seeds={parse_seeds(args.seeds)}")
         exp, raw = load_config(args.config, overrides)
         print_warnings(exp.robot)
+        refuse_what_check_refuses(exp)
         seeds, cycles = None, None
         out_dir = out_dir or default_out_dir(exp.config.name)
     print(f"feltool: {exp.engine} engine ({exp.engine_reason})", flush=True)
@@ -87,6 +88,19 @@ def cmd_run(args: argparse.Namespace) -> int:
         if viewer is not None:
             viewer.close()
     return run_exit_code(summary)
+
+
+def refuse_what_check_refuses(exp) -> None:
+    """Raise the :class:`~feltool.errors.ConfigError` ``feltool check`` raises for ``exp``
+    (:func:`feltool.experiment.checks.experiment_problems`: unreachable targets, learned joints
+    the error never sees, unstable gains, a rate too coarse for the gains), before anything
+    is run or written: one line per problem naming its field, exit 2."""
+    from feltool.errors import ConfigError
+    from feltool.experiment.checks import experiment_problems
+
+    problems = experiment_problems(exp)
+    if problems:
+        raise ConfigError(problems, str(exp.source) if exp.source else None)
 
 
 def run_exit_code(summary: dict) -> int:

@@ -100,6 +100,21 @@ class LearningConfig(Strict):
     damping: PositiveFloat = Field(1.0e-2, le=MAX_DAMPING, description="Levenberg-Marquardt "
                                    "damping, relative to the mean diagonal of J^T J [-]; at most "
                                    f"{MAX_DAMPING:g}.")
+    fit: Literal["closed_loop", "feedforward"] = Field("closed_loop", description="What the "
+        "Gauss-Newton step fits to the error feedback (arms learning per cycle): closed_loop "
+        "(default): the change of the error feedback the known model's closed loop predicts, "
+        "the lifted closed-loop map G times d u_ff / d theta along the desired trajectory "
+        "(norm-optimal; invariant to rate_hz, period_s and basis; feltool.learning.loop_map); "
+        "feedforward: the feedforward's change d u_ff / d theta itself (the step before, "
+        "which assumes the feedback reports the feedforward's error at once and in full). "
+        "Walkers, per_step learning, inverse-model learning (learning.model), cycles of changing "
+        "length (period events, an adaptive phase, a period of no whole number of steps) and "
+        "update: gradient use feedforward.")
+    q_filter_hz: PositiveFloat | None = Field(None, description="fit: closed_loop: learn only "
+        "the cycle's harmonics at or below this frequency [Hz] (a zero-phase projection of the "
+        "fit over one cycle; the parameters' directions that only move higher harmonics are "
+        "left to the damping); null (default): every harmonic the closed loop passes. Python "
+        "engine only.")
     safeguard: bool = Field(True, description="Undo a learning step that makes the next "
         "cycle's mean error feedback exceed safeguard_growth times that of the cycle whose "
         "update it is, or diverge: the parameters before the step are restored and the step halved (a trust "

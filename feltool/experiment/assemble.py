@@ -33,7 +33,7 @@ from feltool.learning.model import ModelLearner, PhaseBasisFeatures, RegressorFe
 from feltool.learning.rates import basis_gain, per_sample_rates, samples_per_cycle
 from feltool.learning.sensitivity import CasadiJacobian
 from feltool.learning.walker_model import WalkerModelLearner
-from feltool.motion.motion import motion_problems, refuse_varying_phase
+from feltool.motion.motion import motion_problems, refuse_varying_phase, varying_phase
 from feltool.motion.rmp import PrimitiveSet, RhythmicPrimitive
 from feltool.plant.disturbances import problems as disturbance_problems
 from feltool.plant.events import check_events
@@ -388,9 +388,29 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
     exp = Experiment(cfg, robot, dynamics, joints, primitives, theta_demo, law, loop, learner,
                      init, source, hybrid, plant, model_learner, fit_rms,
                      init_reference=init_reference)
+    if closed_loop_fit(cfg, hybrid, model_learner, dynamics):
+        learner.fit = "closed_loop"
+        learner.loop = {"law": law, "S": np.asarray(actuated, float), "dt": dt,
+                        "substeps": cfg.sim.substeps,
+                        "semi_implicit": cfg.sim.integrator == "semi_implicit_euler",
+                        "q_filter_hz": L.q_filter_hz}
     if L.sensitivity == "casadi" and learner.n_learned:
         learner.set_casadi_jacobian(CasadiJacobian(robot.model, primitives, learner.learned))
     return exp
+
+
+def closed_loop_fit(cfg: ExperimentConfig, hybrid, model_learner, dynamics) -> bool:
+    """Whether the Gauss-Newton step fits through the closed loop (``learning.fit:
+    closed_loop``, :mod:`feltool.learning.loop_map`): for arms (no walking or actuation
+    block, plain joint coordinates) learning per cycle with update gauss_newton and no
+    inverse-model correction, and no period events or adaptive phase (a period of no whole
+    number of steps is fine: each cycle's map is its own); the others fit the feedforward."""
+    L = cfg.learning
+    events = [where for where, _ in varying_phase(cfg)  # (a fractional period_s is fine)
+              if where != "period_s" and not where.endswith((".amplitude", ".goal"))]
+    return (L.fit == "closed_loop" and L.update == "gauss_newton" and L.step == "per_cycle"
+            and hybrid is None and model_learner is None and dynamics.euclidean
+            and not events)
 
 
 def _check_phase(cfg: ExperimentConfig, joints: list[str], robot: Robot, fixed: set[str],

@@ -30,6 +30,7 @@ import numpy as np
 from feltool.control.cycle import fel_sums, fel_update
 from feltool.control.ops import NUMPY
 from feltool.dynamics.interface import Dynamics
+from feltool.learning.loop_map import apply_q, error_sensitivity, feedback_gains, q_filter
 from feltool.motion.phase import PhaseSamples
 from feltool.motion.rmp import PrimitiveSet
 
@@ -52,6 +53,11 @@ class FeedbackErrorLearner:
         damping: Levenberg-Marquardt damping relative to the mean diagonal of J^T J.
         sensitivity: ``exact`` or ``finite_difference``.
         fd_epsilon: Relative finite-difference step.
+        fit: What the Gauss-Newton step fits: ``feedforward`` (:math:`J`) or ``closed_loop``
+            (the lifted closed-loop map times :math:`J`, :meth:`closed_loop_step`).
+        loop: For ``closed_loop``: ``law`` (the :class:`~feltool.control.feedback.FeedbackLaw`),
+            ``S`` (the actuation selection), ``dt`` [s], ``substeps``, ``semi_implicit`` and
+            ``q_filter_hz`` [Hz] or None.
     """
 
     primitives: PrimitiveSet
@@ -63,6 +69,8 @@ class FeedbackErrorLearner:
     damping: float = 1e-2
     sensitivity: str = "exact"
     fd_epsilon: float = 1e-6
+    fit: str = "feedforward"
+    loop: dict | None = None
 
     def set_casadi_jacobian(self, fn) -> None:
         """Install the CasADi function ``theta -> J`` used by ``sensitivity: casadi``."""
@@ -135,6 +143,39 @@ class FeedbackErrorLearner:
                 taus.append(feedforward(dynamics, Q, V, A))
             J[:, :, c] = (taus[0] - taus[1]) / (2.0 * eps)
         return J
+
+    def closed_loop_step(self, theta: np.ndarray, J: np.ndarray, derivatives: tuple,
+                         E: np.ndarray, Qd: np.ndarray,
+                         cycle: PhaseSamples | None = None) -> np.ndarray:
+        """The Gauss-Newton step through the closed loop (``learning.fit: closed_loop``,
+        :mod:`feltool.learning.loop_map`): the weights' step fits :math:`Q D\\Delta w` to
+        :math:`Q e`, :math:`D` the lifted closed-loop map times ``J`` along the desired
+        trajectory (``derivatives``: the inverse model's ``(Dq, Dv, M)`` there); the goals keep
+        the gradient step of :meth:`step`."""
+        if self.n_learned == 0:
+            return theta.copy()
+        L = self.loop
+        n = J.shape[0]
+        Bref = None
+        law = L["law"]
+        if (law.tracking & (law.C != 0).any(axis=1)).any():
+            dQ, dV = np.zeros_like(J), np.zeros_like(J)
+            for (i, cols), (Xq, Xv, _) in zip(self._blocks, self.learned_sensitivities(cycle)):
+                dQ[:, i, cols], dV[:, i, cols] = Xq, Xv
+            Ct = law.C * law.tracking[:, None]
+            Bref = (law.kp[None, :, None] * np.einsum("ij,kjp->kip", Ct, dQ)
+                    + law.kd[None, :, None] * np.einsum("ij,kjp->kip", Ct, dV))
+        gains = feedback_gains(law, Qd, self.error_mask)
+        D = error_sensitivity(derivatives, J, gains, L["S"], L["dt"], Bref, True,
+                              L.get("substeps", 1), L.get("semi_implicit", True))
+        keep = q_filter(n, n * L["dt"], L.get("q_filter_hz"))
+        Dq, Eq = apply_q(D, keep), apply_q(E, keep)
+        hess = np.einsum("krp,krs->ps", Dq, Dq)
+        grad = np.einsum("kr,krp->p", Eq, Dq)
+        # the goals: the gradient step on the feedforward's sensitivity, as in step()
+        g_goal = self.gradient(J, E)
+        grad = np.where(self.is_goal, g_goal, grad)
+        return self.apply(theta, grad, hess)
 
     def error(self, U_fb: np.ndarray) -> np.ndarray:
         """Error signal :math:`e_k` of joint-local feedback samples ``(n, nv)``: the feedback

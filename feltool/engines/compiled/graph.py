@@ -12,7 +12,9 @@ One cycle, ``(state, data, params) -> (state', stats)``, built from the pieces o
    :math:`u = S(u_{ff} + u_{fb})`, :func:`feltool.control.cycle.advance` through the plant's symbolic
    ABA (friction included), joint and torque limits;
 4. the FEL sums (:func:`feltool.control.cycle.fel_sums`, per-sample vectors, no Jacobian) and the
-   update (:func:`feltool.control.cycle.fel_update`), applied only if the cycle stayed finite;
+   update (:func:`feltool.control.cycle.fel_update`), or with ``learning.fit: closed_loop`` the
+   step through the closed loop (:mod:`feltool.engines.compiled.loop_fit`), applied only if the
+   cycle stayed finite;
 5. the metrics of :func:`feltool.runs.seed` (phase-weighted means, largest errors, limit hits).
 
 ``state`` is the learned parameters and :math:`x_0`; ``params`` the gains, targets and rates,
@@ -36,6 +38,7 @@ from feltool.dynamics.symbolic import (
     symbolic_rnea,
     symbolic_rnea_parametric,
 )
+from feltool.engines.compiled.loop_fit import fit_step
 
 #: Per-cycle statistics, in order: fb_abs_mean (nv), track_err_rms (nv), then these scalars,
 #: then joint-limit hits (nv) and torque-limit hits (nv).
@@ -387,8 +390,11 @@ def cycle_function(exp, plant, full: bool = False, name: str = "cycle") -> ca.Fu
     theta_next = theta
     if L:
         errors = Uerr * ca.repmat(mask, nv, 1) if lay.masked else Uerr
-        step = fel_step(learner, lay, theta, sens, Dall, Uerr * ca.repmat(weight, nv, 1), errors,
-                        rates, damping, weight)
+        step = fit_step(exp, lay, theta, sens, (Qd, Vd, Ad), kp, kd, Dall, Uerr, rates, damping,
+                        symbolic_frames(law, exp.robot.model), mask) \
+            if learner.fit == "closed_loop" else \
+            fel_step(learner, lay, theta, sens, Dall, Uerr * ca.repmat(weight, nv, 1), errors,
+                     rates, damping, weight)
         theta_next = ca.if_else(finite, step, theta)
 
     # 5. metrics

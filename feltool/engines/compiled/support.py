@@ -28,6 +28,8 @@ def unsupported(exp) -> list[tuple[str, str]]:
     if cfg.primitives.phase == "adaptive":
         out.append(("primitives.phase", "the adaptive oscillator runs in the Python engine only "
                                         "(its cycle length depends on the measured motion)"))
+    if exp.learner.fit == "closed_loop" and L.q_filter_hz is not None:
+        out.append(("learning.q_filter_hz", "the Q-filter runs in the Python engine only"))
     if exp.robot.model.nq != exp.robot.model.nv:
         out.append(("robot", "the compiled engine needs joints with one coordinate each"))
     if cfg.walking is not None and cfg.walking.physical:
