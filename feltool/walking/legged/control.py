@@ -23,13 +23,19 @@ kinetic-energy metric,
 feet it is not: on four feet Solo-12's 12 motors move only the 6 degrees of freedom the contacts
 leave (``rank`` :math:`B^\top W B = 6`); the other 6 directions of :math:`u` squeeze the feet
 against each other, changing the contact forces and nothing else. Choosing them is what keeps
-each foot pushing and inside its friction cone: an inequality problem. So the same cost is
-solved as a QP (``qpsolvers`` with ``proxqp``) with :math:`\varepsilon\|u\|^2` added (the
-smallest torques among the equal ones), the contact forces -- affine in :math:`u`,
-:math:`\lambda(u) = \Lambda(JM^{-1}(b - Bu) - \gamma)`, :math:`\Lambda = (JM^{-1}J^\top)^{-1}`,
-the KKT solution of the stance dynamics on Pinocchio's :math:`M, b, J, \gamma` -- kept in an
-inner friction pyramid :math:`|f_{x}|, |f_{y}| \le \mu' f_z/\sqrt 2` with a normal force floor,
-and the torques within their limits.
+each foot pushing and inside its friction cone: an inequality problem, solved as a QP
+(``qpsolvers`` with ``proxqp``) in two stages. The contact forces are affine in :math:`u`,
+:math:`\lambda(u) = \Lambda(JM^{-1}(b - Bu) - \gamma)`, :math:`\Lambda = (JM^{-1}J^\top)^{-1}`
+(the KKT solution of the stance dynamics on Pinocchio's :math:`M, b, J, \gamma`), and are kept
+in an inner friction pyramid :math:`|f_{x}|, |f_{y}| \le \mu' f_z/\sqrt 2`,
+:math:`\mu' = ` ``margin`` :math:`\mu`, above a normal-force floor; the torques within their
+limits.
+
+1. *Exact*: every minimiser of the cost, :math:`u = u_0 + N z` (:math:`u_0` the least-norm one,
+   :math:`N` the null space of :math:`B^\top W B`), gives the wanted constrained accelerations;
+   the smallest :math:`\|u\|` of them inside the cones and limits (a QP in :math:`z`).
+2. *Least squares*, when no exact one keeps the cones (the wanted force would make a foot slip
+   or pull): the cost plus :math:`\varepsilon\|u\|^2` under the same constraints.
 """
 
 from __future__ import annotations
@@ -69,13 +75,16 @@ class Allocation:
         u: Motor torques ``(k,)`` [N m].
         forces: The contact forces ``(n, 3)`` [N] the stance dynamics give under ``u`` (the
             QP's affine model of them, exact for the known model at this state).
-        solved: False when the QP was infeasible (then ``u`` is the unconstrained allocation
-            clipped to the torque limits and the checks decide).
+        solved: False when no torques within the limits keep the cones (then ``u`` is the
+            unconstrained allocation clipped to the limits and the checks decide).
+        exact: True when ``u`` gives the wanted constrained accelerations exactly (else they
+            are met in least squares, the cones and limits kept).
     """
 
     u: np.ndarray
     forces: np.ndarray
     solved: bool = True
+    exact: bool = True
 
 
 @dataclass
@@ -91,7 +100,9 @@ class StandingController:
         normal_force_min: The QP's floor on each stance foot's normal force, in [N].
         margin: Fraction of :math:`\\mu` the QP uses.
         regularization: :math:`\\varepsilon` relative to the mean diagonal of
-            :math:`B^\\top W B`.
+            :math:`B^\\top W B`, when no allocation is exact (below).
+        rank_tol: Eigenvalues of :math:`B^\\top W B` below this fraction of its largest span
+            its null space.
     """
 
     legged: LeggedModel
@@ -103,6 +114,7 @@ class StandingController:
     normal_force_min: float = 0.5
     margin: float = 0.8
     regularization: float = 1e-6
+    rank_tol: float = 1e-8
     infeasible: int = field(default=0, init=False)
 
     def __post_init__(self):
@@ -163,22 +175,43 @@ class StandingController:
         else:
             W, lam0, L = Minv, np.zeros(0), np.zeros((0, k))
         H = B.T @ W @ B
-        eps = self.regularization * max(np.trace(H) / k, 1e-12)
-        P = H + eps * np.eye(k)
-        P = 0.5 * (P + P.T)
-        c = -B.T @ W @ tau_w
+        H = 0.5 * (H + H.T)
+        c = B.T @ W @ tau_w
         lim = np.minimum(self.legged.effort, 1e6)
         G, h = self._cones(lam0, L, n)
-        u = None
-        if n:
-            u = qpsolvers.solve_qp(P, c, G, h, lb=-lim, ub=lim, solver="proxqp",
-                                   eps_abs=1e-10, eps_rel=0.0)
+        u, exact = self._exact(H, c, G, h, lim)
         solved = u is not None
+        if u is None:  # the wanted accelerations break a cone or a limit: least squares in them
+            eps = self.regularization * max(np.trace(H) / k, 1e-300)
+            P = H + eps * np.eye(k)
+            u = qpsolvers.solve_qp(P, -c, G, h, lb=-lim, ub=lim, solver="proxqp",
+                                   eps_abs=1e-9, eps_rel=0.0)
+            solved = u is not None
         if u is None:
-            if n:
-                self.infeasible += 1
-            u = np.clip(np.linalg.solve(P, -c), -lim, lim)
-        return Allocation(np.asarray(u, float), (lam0 + L @ u).reshape(n, 3), solved)
+            self.infeasible += 1
+            u = np.clip(np.linalg.lstsq(H, c, rcond=None)[0], -lim, lim)
+        u = np.asarray(u, float)
+        return Allocation(u, (lam0 + L @ u).reshape(n, 3), solved, exact)
+
+    def _exact(self, H, c, G, h, lim):
+        """The allocations that give the wanted constrained accelerations exactly, ``u = u_0 + N
+        z`` (``u_0`` the least-norm one, ``N`` the null space of :math:`B^\top W B`), the
+        smallest within the cones and limits: a QP in ``z`` (identity Hessian). None when there
+        is none."""
+        s, V = np.linalg.eigh(H)
+        keep = s > self.rank_tol * max(s.max(), 1e-300)
+        Vr, N = V[:, keep], V[:, ~keep]
+        u0 = Vr @ ((Vr.T @ c) / s[keep])
+        if N.shape[1] == 0:
+            inside = np.all(np.abs(u0) <= lim) and (G is None or np.all(G @ u0 <= h + 1e-9))
+            return (u0, True) if inside else (None, False)
+        Gz = np.vstack([N, -N] + ([G @ N] if G is not None else []))
+        hz = np.concatenate([lim - u0, lim + u0] + ([h - G @ u0] if G is not None else []))
+        z = qpsolvers.solve_qp(np.eye(N.shape[1]), N.T @ u0, Gz, hz, solver="proxqp",
+                               eps_abs=1e-10, eps_rel=0.0)
+        if z is None:
+            return None, False
+        return u0 + N @ z, True
 
     def _cones(self, lam0: np.ndarray, L: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
         """``G u <= h``: each foot's normal-force floor and its inner friction pyramid."""
