@@ -115,7 +115,9 @@ class StandingController:
     margin: float = 0.8
     regularization: float = 1e-6
     rank_tol: float = 1e-8
+    #: Allocations with no torques inside the cones and limits / not exact, so far
     infeasible: int = field(default=0, init=False)
+    inexact: int = field(default=0, init=False)
 
     def __post_init__(self):
         nv = self.legged.nv
@@ -182,6 +184,7 @@ class StandingController:
         u, exact = self._exact(H, c, G, h, lim)
         solved = u is not None
         if u is None:  # the wanted accelerations break a cone or a limit: least squares in them
+            self.inexact += 1
             eps = self.regularization * max(np.trace(H) / k, 1e-300)
             P = H + eps * np.eye(k)
             u = qpsolvers.solve_qp(P, -c, G, h, lb=-lim, ub=lim, solver="proxqp",
