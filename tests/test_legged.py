@@ -292,3 +292,67 @@ def test_solo12_stands_two_seconds_after_a_push_and_stays_physical(solo):
     assert log.height[-1] == pytest.approx(q[2], abs=1e-4)
     # the stance forces carry the weight at rest again
     assert log.forces[-1][:, 2].sum() == pytest.approx(solo.mass * 9.81, rel=1e-3)
+
+
+def test_a_dropped_robot_touches_down_on_the_ground_with_a_checked_impact(solo):
+    """Solo-12 falling with every foot 5 mm up and no torque: the sub-step ends at the
+    touchdown, located on the ground (1e-9 m), all four feet landing together; the impact stops
+    them with pushing impulses and takes the energy it lost (the flight conserves it)."""
+    from feltool.walking.legged.events import touchdown
+
+    c = LeggedContact(solo)
+    q = solo.standing()
+    q[2] += 0.005
+    v = np.zeros(18)
+    v[2] = -0.3
+    st = LeggedStats()
+    q1, v1, _, landed, used = touchdown(c, ContactChecks(), st, q, v,
+                                        lambda qq, s: np.zeros(18), 0.05, (), FEET)
+    assert landed == FEET and 0.0 < used < 0.05
+    np.testing.assert_allclose(c.positions(q1)[:, 2], 0.0, atol=1e-9)
+    assert np.abs(c.jacobian(q1, FEET) @ v1).max() < 1e-10
+    # the flight conserves energy (RK4), the impact takes what it lost
+    e0 = c.kinetic_energy(q, v) + c.potential_energy(q)
+    e1 = c.kinetic_energy(q1, v1) + c.potential_energy(q1)
+    assert st.energy_lost > 0.0 and e1 == pytest.approx(e0 - st.energy_lost, abs=1e-6)
+
+
+def test_a_lifted_leg_is_released_carried_and_its_touchdown_checked(solo):
+    """The base moved over the other three feet, the front-left foot released at 0.6 s (it
+    accelerates up), lifted 3 cm and put down: the three-foot stance is physical throughout; the
+    rigid impact of four held feet at its touchdown asks the diagonal foot FR to pull (by about
+    1e-5 N s), which the strict check reports (a complementarity impact is not done yet)."""
+    from feltool.walking.legged.model import inverse_kinematics
+
+    q0 = solo.standing()
+    P0 = solo.foot_positions(q0)
+    shift = np.r_[P0[1:, :2].mean(0), 0.0]
+
+    def pose(t):
+        base = q0[:7].copy()
+        x = np.clip(t / 0.5, 0.0, 1.0)
+        base[:3] += shift * x * x * (3 - 2 * x)
+        P = P0.copy()
+        sw = (t - 0.6) / 0.3
+        if 0 < sw < 1:
+            P[0, 2] = 0.03 * np.sin(np.pi * sw) ** 2 - 0.004 * sw ** 2
+        elif sw >= 1:
+            P[0, 2] = -0.004
+        return inverse_kinematics(solo, base, P, q0)
+
+    def motion(t, e=1e-4):
+        qm, qc, qp = pose(t - e), pose(t), pose(t + e)
+        return (qc, pin.difference(solo.model, qm, qp) / (2 * e),
+                (pin.difference(solo.model, qc, qp) - pin.difference(solo.model, qm, qc)) / e ** 2)
+
+    def schedule(t):
+        return FEET[1:] if 0.6 <= t < 0.75 else FEET
+
+    ctl = StandingController(solo, q0, motion=motion)
+    log = stand(solo, ctl, q0, duration=1.2, schedule=schedule)
+    air = (log.t > 0.61) & (log.t < 0.85)
+    assert np.isnan(log.forces[air, 0]).all() and (log.forces[air, 1:, 2] > 1.0).all()
+    assert solo.foot_positions(log.q[np.searchsorted(log.t, 0.75)])[0, 2] > 0.025
+    assert log.kind == "impulse" and "FR would pull" in log.not_walking
+    assert 0.85 < log.t[-1] < 0.92
+    assert log.stats.max_friction_ratio < 0.7 and log.stats.max_torque < 2.7

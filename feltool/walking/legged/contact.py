@@ -84,7 +84,9 @@ class LeggedContact:
         self._sets: dict[tuple[str, ...], tuple] = {}
 
     def constraints(self, feet: tuple[str, ...]):
-        """Pinocchio's constraint models and datas of the feet ``feet`` (built once per set)."""
+        """Pinocchio's constraint models and datas of the feet ``feet`` and the model's data
+        they were initialised with (built once per set: ``initConstraintDynamics`` sizes a
+        data for one set, and a data used with another set of another size corrupts memory)."""
         feet = tuple(feet)
         if feet not in self._sets:
             models = pin.StdVec_RigidConstraintModel()
@@ -98,8 +100,9 @@ class LeggedContact:
             datas = pin.StdVec_RigidConstraintData()
             for cm in models:
                 datas.append(cm.createData())
-            pin.initConstraintDynamics(self.model, self.data, models, datas)
-            self._sets[feet] = (models, datas)
+            data = self.model.createData()
+            pin.initConstraintDynamics(self.model, data, models, datas)
+            self._sets[feet] = (models, datas, data)
         return self._sets[feet]
 
     def stance(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray,
@@ -111,8 +114,8 @@ class LeggedContact:
         if not feet:
             return StanceResult(np.array(pin.aba(self.model, self.data, q, v, tau)),
                                 np.zeros((0, 3)), feet)
-        models, datas = self.constraints(feet)
-        a = pin.constraintDynamics(self.model, self.data, q, v, tau, models, datas, _PROX)
+        models, datas, data = self.constraints(feet)
+        a = pin.constraintDynamics(self.model, data, q, v, tau, models, datas, _PROX)
         forces = np.array([np.array(cd.contact_force.linear) for cd in datas])
         return StanceResult(np.array(a), forces, feet)
 
@@ -120,9 +123,9 @@ class LeggedContact:
         """The perfectly inelastic impact that stops the feet ``feet`` (``pin.impulseDynamics``
         on their constraints): the velocities after it and each foot's impulse."""
         feet = tuple(feet)
-        models, datas = self.constraints(feet)
+        models, datas, data = self.constraints(feet)
         before = self.kinetic_energy(q, v)
-        v_plus = np.array(pin.impulseDynamics(self.model, self.data, q, v, models, datas, 0.0,
+        v_plus = np.array(pin.impulseDynamics(self.model, data, q, v, models, datas, 0.0,
                                               _PROX))
         impulses = np.array([np.array(cd.contact_force.linear) for cd in datas])
         return ImpactResult(v_plus, impulses, feet, before - self.kinetic_energy(q, v_plus))

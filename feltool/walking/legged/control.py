@@ -40,6 +40,7 @@ limits.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -101,6 +102,8 @@ class StandingController:
         margin: Fraction of :math:`\\mu` the QP uses.
         regularization: :math:`\\varepsilon` relative to the mean diagonal of
             :math:`B^\\top W B`, when no allocation is exact (below).
+        motion: ``t [s] -> (q_d, v_d, a_d)``, a desired motion replacing the constant
+            ``q_d`` (None: stand at ``q_d``).
         rank_tol: Eigenvalues of :math:`B^\\top W B` below this fraction of its largest span
             its null space.
     """
@@ -115,6 +118,7 @@ class StandingController:
     margin: float = 0.8
     regularization: float = 1e-6
     rank_tol: float = 1e-8
+    motion: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
     #: Allocations with no torques inside the cones and limits / not exact, so far
     infeasible: int = field(default=0, init=False)
     inexact: int = field(default=0, init=False)
@@ -232,6 +236,10 @@ class StandingController:
             return None, None
         return np.array(rows), np.array(rhs)
 
-    def __call__(self, q: np.ndarray, v: np.ndarray, feet: tuple[str, ...]) -> Allocation:
-        """The motor torques at the state ``(q, v)`` with ``feet`` in stance."""
+    def __call__(self, q: np.ndarray, v: np.ndarray, feet: tuple[str, ...],
+                 t: float = 0.0) -> Allocation:
+        """The motor torques at the state ``(q, v)`` with ``feet`` in stance, at time ``t`` [s]
+        of the :attr:`motion`."""
+        if self.motion is not None:
+            self.q_d, self.v_d, self.a_d = (np.asarray(x, float) for x in self.motion(t))
         return self.allocate(q, v, self.wanted(q, v), feet)

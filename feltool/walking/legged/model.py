@@ -88,12 +88,34 @@ class LeggedModel:
             z = self.foot_positions(q)[:, 2]
             if np.abs(z).max() < 1e-12:
                 break
+            pin.computeJointJacobians(self.model, self.data, q)
             J = np.array([pin.getFrameJacobian(self.model, self.data, f, pin.LOCAL_WORLD_ALIGNED)[2]
                           for f in self.feet.values()])
             J[:, :6] = 0.0
             dv = -np.linalg.pinv(J) @ z
             q = pin.integrate(self.model, q, dv)
         return q
+
+
+def inverse_kinematics(legged: LeggedModel, base: np.ndarray, targets: np.ndarray,
+                       q: np.ndarray | None = None, iterations: int = 30) -> np.ndarray:
+    """The configuration with the base at ``base`` (``(7,)``: position [m], quaternion x, y,
+    z, w) and every foot at its ``targets`` row ``(n_feet, 3)`` [m]: Gauss-Newton on the joints
+    alone (least norm, from ``q`` or :attr:`LeggedModel.q0`), to 1e-12 m or ``iterations``."""
+    m, d = legged.model, legged.data
+    q = (legged.q0 if q is None else q).copy()
+    q[:7] = base
+    for _ in range(iterations):
+        err = (legged.foot_positions(q) - targets).ravel()
+        if np.abs(err).max() < 1e-12:
+            break
+        pin.computeJointJacobians(m, d, q)
+        J = np.vstack([pin.getFrameJacobian(m, d, f, pin.LOCAL_WORLD_ALIGNED)[:3, 6:]
+                       for f in legged.feet.values()])
+        dv = np.zeros(legged.nv)
+        dv[6:] = -np.linalg.lstsq(J, err, rcond=None)[0]
+        q = pin.integrate(m, q, dv)
+    return q
 
 
 def legged_model(model: pin.Model, feet: dict[str, dict], q0: np.ndarray | None = None,

@@ -9,6 +9,7 @@ reason (*not walking*).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +19,7 @@ from feltool.walking.checks import ContactChecks, NotWalking
 from feltool.walking.legged.checks import LeggedStats, check_air, check_stance, check_torques
 from feltool.walking.legged.contact import LeggedContact
 from feltool.walking.legged.control import StandingController
+from feltool.walking.legged.events import check_release, touchdown
 from feltool.walking.legged.model import LeggedModel
 
 
@@ -42,10 +44,12 @@ class StandLog:
     Attributes:
         t: Times [s] ``(n,)``; ``q`` ``(n, nq)``, ``v`` ``(n, nv)`` the states at them.
         u: Motor torques ``(n, k)`` [N m].
-        forces: Stance forces at the start of each control step ``(n, n_feet, 3)`` [N].
+        forces: Ground forces at the start of each control step ``(n, n_feet, 3)`` [N] (NaN
+            for a foot in the air).
         height: Base height [m]; ``roll``, ``pitch`` [rad] (of the base's rotation, ZYX).
         stats: The contact physics seen.
         not_walking: The reason the rollout stopped, or None; ``kind`` its kind.
+        touchdowns: ``(time [s], feet)`` of each touchdown.
     """
 
     t: np.ndarray
@@ -59,13 +63,15 @@ class StandLog:
     stats: LeggedStats = field(default_factory=LeggedStats)
     not_walking: str | None = None
     kind: str | None = None
+    touchdowns: list = field(default_factory=list)
 
 
 def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
           v0: np.ndarray | None = None, duration: float = 2.0, rate_hz: float = 1000.0,
           substeps: int = 1, checks: ContactChecks | None = None, push: Push | None = None,
-          plant: pin.Model | None = None) -> StandLog:
-    """Roll the robot out standing on every foot for ``duration`` [s].
+          plant: pin.Model | None = None,
+          schedule: Callable[[float], tuple[str, ...]] | None = None) -> StandLog:
+    """Roll the robot out on its feet for ``duration`` [s].
 
     Args:
         legged: The robot.
@@ -77,18 +83,26 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
         checks: The contact checks (default: ``ContactChecks(effort=legged.effort)``).
         push: A push on the base (the plant feels it, the controller does not).
         plant: The plant's model when it differs from the known one (same joints and frames).
+        schedule: ``t [s] ->`` the feet meant to be in stance (default: all, always). A foot it
+            drops is released (:func:`~feltool.walking.legged.events.check_release`); a foot it
+            names that is in the air joins the stance at its touchdown
+            (:func:`~feltool.walking.legged.events.touchdown`), recorded in
+            :attr:`StandLog.touchdowns`.
     """
     chk = ContactChecks(effort=legged.effort) if checks is None else checks
     contact = LeggedContact(legged, plant)
-    feet = tuple(legged.feet)
-    anchors = contact.positions(q0)
+    names = list(legged.feet)
+    stance = tuple(names)
+    pos0 = contact.positions(q0)
+    anchor = dict(zip(names, pos0))
     q, v = contact.hold(np.array(q0, float), np.zeros(legged.nv) if v0 is None
-                        else np.array(v0, float), feet, anchors)
+                        else np.array(v0, float), stance, pos0)
     B, dt = legged.selection(), 1.0 / rate_hz
     h = dt / substeps
     n = int(round(duration * rate_hz))
     st = LeggedStats()
     rec = {key: [] for key in ("t", "q", "v", "u", "forces")}
+    touchdowns: list = []
     reason = kind = None
 
     def external(qq, t):
@@ -98,36 +112,50 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
         Jb = pin.getJointJacobian(contact.model, contact.data, 1, pin.LOCAL_WORLD_ALIGNED)
         return Jb.T @ np.r_[push.force, push.torque]
 
-    def acc(qq, vv, tau, t):
-        r = contact.stance(qq, vv, tau + external(qq, t), feet)
-        return r.a, r.forces
-
     try:
         for i in range(n):
             t = i * dt
-            alloc = controller(q, v, feet)
+            wanted = stance if schedule is None else \
+                tuple(f for f in names if f in schedule(t))
+            released = tuple(f for f in stance if f not in wanted)
+            stance = tuple(f for f in stance if f in wanted)
+            alloc = controller(q, v, stance, t)
             u = check_torques(chk, st, alloc.u, legged.motors)
             tau = B @ u
+            if released:
+                check_release(contact, q, v, tau + external(q, t), stance, released)
+            start = (q, v)
             for s in range(substeps):
-                ts = t + s * h
-                a1, f1 = acc(q, v, tau, ts)
-                check_stance(chk, st, feet, f1)
-                if s == 0:
-                    for key, val in (("t", t), ("q", q), ("v", v), ("u", u), ("forces", f1)):
-                        rec[key].append(np.copy(val))
-                v2 = v + 0.5 * h * a1
-                a2, _ = acc(pin.integrate(contact.model, q, 0.5 * h * v), v2, tau, ts + h / 2)
-                v3 = v + 0.5 * h * a2
-                a3, _ = acc(pin.integrate(contact.model, q, 0.5 * h * v2), v3, tau, ts + h / 2)
-                v4 = v + h * a3
-                a4, _ = acc(pin.integrate(contact.model, q, h * v3), v4, tau, ts + h)
-                q = pin.integrate(contact.model, q, h / 6 * (v + 2 * v2 + 2 * v3 + v4))
-                v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
-                q, v = contact.hold(q, v, feet, anchors)
-                air = [f for f in legged.feet if f not in feet]
-                if air:
-                    check_air(chk, st, tuple(air), contact.positions(q)[[list(legged.feet).index(f)
-                                                                          for f in air], 2])
+                done = 0.0
+                while h - done > 1e-12:
+                    ts = t + s * h + done
+
+                    def forcing(qq, offset, ts=ts, tau=tau):
+                        return tau + external(qq, ts + offset)
+
+                    q, v, f1, landed, used = touchdown(contact, chk, st, q, v, forcing,
+                                                       h - done, stance, wanted)
+                    if stance:
+                        check_stance(chk, st, stance, f1)
+                    if s == 0 and done == 0.0:
+                        full = np.full((len(names), 3), np.nan)
+                        for f, fv in zip(stance, f1):
+                            full[names.index(f)] = fv
+                        for key, val in (("t", t), ("q", start[0]), ("v", start[1]), ("u", u),
+                                         ("forces", full)):
+                            rec[key].append(np.copy(val))
+                    if landed:
+                        stance = tuple(f for f in names if f in stance or f in landed)
+                        pos = contact.positions(q)
+                        for f in landed:
+                            anchor[f] = pos[names.index(f)]
+                        touchdowns.append((ts + used, landed))
+                    done = done + used if landed else h
+                    q, v = contact.hold(q, v, stance, np.array([anchor[f] for f in stance]))
+                    air = tuple(f for f in names if f not in stance)
+                    if air:
+                        check_air(chk, st, air,
+                                  contact.positions(q)[[names.index(f) for f in air], 2])
             if not np.all(np.isfinite(q)) or not np.all(np.isfinite(v)):
                 raise NotWalking(f"the state is not finite at t = {t:.4g} s", "diverged")
     except NotWalking as exc:
@@ -137,4 +165,5 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                    ).reshape(-1, 3)
     return StandLog(t=np.array(rec["t"]), q=Q, v=np.array(rec["v"]), u=np.array(rec["u"]),
                     forces=np.array(rec["forces"]), height=Q[:, 2], roll=rpy[:, 0],
-                    pitch=rpy[:, 1], stats=st, not_walking=reason, kind=kind)
+                    pitch=rpy[:, 1], stats=st, not_walking=reason, kind=kind,
+                    touchdowns=touchdowns)
