@@ -1,0 +1,207 @@
+r"""A 3D legged robot: a free-flyer base (Pinocchio's ``JointModelFreeFlyer``) with named point
+feet.
+
+A foot is a point of a link, named by a frame of the model (``{"frame": "FL_FOOT"}``) or by a
+link and an offset in that link's frame (``{"link": "FL_LOWER_LEG", "offset": [0, 0, -0.16]}``,
+in [m]); the latter adds an operational frame ``foot_<name>`` to the model. The ground is the
+plane :math:`z = 0` with gravity along :math:`-z`; a foot in stance touches it at its point.
+
+Coordinates are Pinocchio's: ``q = (x, y, z, quaternion (x, y, z, w), joints)`` (``nq = 7 + k``),
+``v = (base linear and angular velocity in the base frame, joint rates)`` (``nv = 6 + k``). Every
+joint after the free flyer is a motor (:attr:`LeggedModel.motors`, velocity indices ``6 ...``), its
+limit the URDF's effort limit unless :class:`LeggedModel` is given another.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from feltool.errors import ConfigError, RobotError
+
+#: The feet of Solo-12 in example-robot-data, by their frames
+SOLO12_FEET = {"FL": {"frame": "FL_FOOT"}, "FR": {"frame": "FR_FOOT"},
+               "HL": {"frame": "HL_FOOT"}, "HR": {"frame": "HR_FOOT"}}
+
+
+@dataclass
+class LeggedModel:
+    """A floating-base robot with point feet.
+
+    Attributes:
+        model: The Pinocchio model, its first joint a free flyer (foot frames added).
+        feet: ``{foot name: frame id}`` of the feet's contact points, in the given order.
+        effort: Motor effort limits ``(k,)`` in [N m] (the URDF's, or the override).
+        q0: A reference configuration ``(nq,)`` (example-robot-data's, else the neutral one).
+        name: The robot's name.
+    """
+
+    model: pin.Model
+    feet: dict[str, int]
+    effort: np.ndarray
+    q0: np.ndarray
+    name: str = "legged"
+    data: pin.Data = field(init=False, repr=False)
+
+    def __post_init__(self):
+        self.data = self.model.createData()
+
+    @property
+    def nq(self) -> int:
+        return self.model.nq
+
+    @property
+    def nv(self) -> int:
+        return self.model.nv
+
+    @property
+    def motors(self) -> list[str]:
+        """The motor joints' names, in velocity order (the free flyer's 6 rows are passive)."""
+        return list(self.model.names[2:])
+
+    @property
+    def mass(self) -> float:
+        """Total mass in [kg]."""
+        return float(pin.computeTotalMass(self.model))
+
+    def selection(self) -> np.ndarray:
+        """``B`` ``(nv, k)``: the motors' generalized forces, ``tau = B u``."""
+        B = np.zeros((self.nv, self.nv - 6))
+        B[6:, :] = np.eye(self.nv - 6)
+        return B
+
+    def foot_positions(self, q: np.ndarray) -> np.ndarray:
+        """``(n_feet, 3)`` positions of the feet's contact points in the world, in [m]."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return np.array([self.data.oMf[f].translation for f in self.feet.values()])
+
+    def standing(self, q: np.ndarray | None = None, iterations: int = 20) -> np.ndarray:
+        """A configuration with every foot on the ground (z = 0), from ``q`` (default
+        :attr:`q0`): the base lowered by the feet's mean height, then Gauss-Newton on the feet's
+        heights over the joints only (least norm), the base's pose kept."""
+        q = (self.q0 if q is None else q).copy()
+        q[2] -= self.foot_positions(q)[:, 2].mean()
+        for _ in range(iterations):
+            z = self.foot_positions(q)[:, 2]
+            if np.abs(z).max() < 1e-12:
+                break
+            pin.computeJointJacobians(self.model, self.data, q)
+            J = np.array([pin.getFrameJacobian(self.model, self.data, f, pin.LOCAL_WORLD_ALIGNED)[2]
+                          for f in self.feet.values()])
+            J[:, :6] = 0.0
+            dv = -np.linalg.pinv(J) @ z
+            q = pin.integrate(self.model, q, dv)
+        return q
+
+
+def inverse_kinematics(legged: LeggedModel, base: np.ndarray, targets: np.ndarray,
+                       q: np.ndarray | None = None, iterations: int = 30) -> np.ndarray:
+    """The configuration with the base at ``base`` (``(7,)``: position [m], quaternion x, y,
+    z, w) and every foot at its ``targets`` row ``(n_feet, 3)`` [m]: Gauss-Newton on the joints
+    alone (least norm, from ``q`` or :attr:`LeggedModel.q0`), to 1e-12 m or ``iterations``."""
+    m, d = legged.model, legged.data
+    q = (legged.q0 if q is None else q).copy()
+    q[:7] = base
+    for _ in range(iterations):
+        err = (legged.foot_positions(q) - targets).ravel()
+        if np.abs(err).max() < 1e-12:
+            break
+        pin.computeJointJacobians(m, d, q)
+        J = np.vstack([pin.getFrameJacobian(m, d, f, pin.LOCAL_WORLD_ALIGNED)[:3, 6:]
+                       for f in legged.feet.values()])
+        dv = np.zeros(legged.nv)
+        dv[6:] = -np.linalg.lstsq(J, err, rcond=None)[0]
+        q = pin.integrate(m, q, dv)
+    return q
+
+
+def legged_model(model: pin.Model, feet: dict[str, dict], q0: np.ndarray | None = None,
+                 effort: float | np.ndarray | None = None, name: str = "legged") -> LeggedModel:
+    """A :class:`LeggedModel` from a free-flyer Pinocchio model and the feet's description.
+
+    Args:
+        model: The robot on a free flyer (copied; foot frames are added to the copy).
+        feet: ``{name: {"frame": FRAME}}`` or ``{name: {"link": LINK, "offset": [x, y, z]}}``
+            (offset in [m], in the link's frame).
+        q0: A reference configuration (default: the neutral one, base 1 m up).
+        effort: Motor effort limit(s) in [N m] replacing the URDF's (one value for all motors,
+            or one per motor).
+        name: The robot's name.
+
+    Raises:
+        RobotError: the model has no free flyer as its first joint.
+        ConfigError: a foot names no frame or link of the model, or its entry is malformed
+            (the error names ``walking.feet.<name>``).
+    """
+    model = pin.Model(model)
+    if model.njoints < 2 or model.joints[1].shortname() != "JointModelFreeFlyer":
+        raise RobotError(f"{name}: a legged robot's first joint must be a free flyer "
+                         f"(pinocchio.JointModelFreeFlyer); its first joint is "
+                         f"{model.joints[1].shortname() if model.njoints > 1 else 'none'}")
+    if not feet:
+        raise ConfigError([("walking.feet", "name at least one foot")])
+    problems, ids = [], {}
+    for foot, spec in feet.items():
+        where = f"walking.feet.{foot}"
+        if not isinstance(spec, dict) or set(spec) not in ({"frame"}, {"link", "offset"}, {"link"}):
+            problems.append((where, "give {frame: NAME} or {link: NAME, offset: [x, y, z]}"))
+            continue
+        if "frame" in spec:
+            if not model.existFrame(spec["frame"]):
+                problems.append((where, f"no frame '{spec['frame']}' in {name}"))
+                continue
+            ids[foot] = model.getFrameId(spec["frame"])
+            continue
+        link = spec["link"]
+        if not model.existFrame(link, pin.BODY):
+            problems.append((where, f"no link '{link}' in {name}"))
+            continue
+        offset = np.asarray(spec.get("offset", [0.0, 0.0, 0.0]), float)
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+            problems.append((where + ".offset", "three finite numbers [x, y, z] in [m]"))
+            continue
+        body = model.frames[model.getFrameId(link, pin.BODY)]
+        placement = body.placement * pin.SE3(np.eye(3), offset)
+        ids[foot] = model.addFrame(pin.Frame(f"foot_{foot}", body.parentJoint, placement,
+                                             pin.FrameType.OP_FRAME))
+    if problems:
+        raise ConfigError(problems)
+    k = model.nv - 6
+    if effort is None:
+        lim = np.array(model.effortLimit[6:], float)
+    else:
+        lim = np.broadcast_to(np.asarray(effort, float), (k,)).copy()
+        if np.any(lim <= 0) or not np.all(np.isfinite(lim)):
+            raise ConfigError([("effort", f"positive finite motor limits in [N m], got {effort}")])
+    if q0 is None:
+        q0 = pin.neutral(model)
+        q0[2] = 1.0
+    return LeggedModel(model=model, feet=ids, effort=lim, q0=np.asarray(q0, float).copy(),
+                       name=name)
+
+
+def load_legged_urdf(path: str | Path, feet: dict[str, dict], effort=None) -> LeggedModel:
+    """A legged robot from a URDF file, put on a free flyer (``JointModelFreeFlyer`` above its
+    root link). Raises :class:`RobotError` naming the file when it cannot be read."""
+    path = Path(path)
+    if not path.is_file():
+        raise RobotError(f"{path}: no such URDF file")
+    try:
+        model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
+    except Exception as exc:  # urdfdom's messages
+        raise RobotError(f"{path}: not a readable URDF ({exc})") from None
+    return legged_model(model, feet, effort=effort, name=path.stem)
+
+
+def load_solo12(effort: float | None = None) -> LeggedModel:
+    """Solo-12 from example-robot-data (nq 19, nv 18), its feet the frames ``FL_FOOT``,
+    ``FR_FOOT``, ``HL_FOOT``, ``HR_FOOT`` (the foot spheres' centres), ``q0`` its reference
+    posture. Its URDF gives every motor 1000 N m; pass ``effort`` for a real limit."""
+    import example_robot_data as erd
+
+    robot = erd.load("solo12")
+    return legged_model(robot.model, SOLO12_FEET, q0=np.array(robot.q0), effort=effort,
+                        name="solo12")

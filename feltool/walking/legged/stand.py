@@ -1,0 +1,169 @@
+r"""The closed loop of a legged robot standing on its feet, pushed: the controller at the control
+rate, the plant's stance dynamics (:class:`~feltool.walking.legged.contact.LeggedContact`, the
+feet held where they stand) integrated by classical Runge-Kutta over ``substeps`` sub-steps of
+each control step (torque held, the push a force on the base the controller does not know),
+the feet put back on their anchors after every sub-step, and every contact check of
+:mod:`feltool.walking.legged.checks` at every sub-step: a violation stops the rollout with the
+reason (*not walking*).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from feltool.walking.checks import ContactChecks, NotWalking
+from feltool.walking.legged.checks import LeggedStats, check_air, check_stance, check_torques
+from feltool.walking.legged.contact import LeggedContact
+from feltool.walking.legged.control import StandingController
+from feltool.walking.legged.events import check_release, touchdown
+from feltool.walking.legged.model import LeggedModel
+
+
+@dataclass
+class Push:
+    """A push on the base: ``force`` [N] (world axes, at the base's origin) and ``torque``
+    [N m] from ``start`` [s] for ``duration`` [s]."""
+
+    start: float = 0.2
+    duration: float = 0.1
+    force: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    torque: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def active(self, t: float) -> bool:
+        return self.start <= t < self.start + self.duration
+
+
+@dataclass
+class StandLog:
+    """A standing rollout, per control step.
+
+    Attributes:
+        t: Times [s] ``(n,)``; ``q`` ``(n, nq)``, ``v`` ``(n, nv)`` the states at them.
+        u: Motor torques ``(n, k)`` [N m].
+        forces: Ground forces at the start of each control step ``(n, n_feet, 3)`` [N] (NaN
+            for a foot in the air).
+        height: Base height [m]; ``roll``, ``pitch`` [rad] (of the base's rotation, ZYX).
+        stats: The contact physics seen.
+        not_walking: The reason the rollout stopped, or None; ``kind`` its kind.
+        touchdowns: ``(time [s], feet)`` of each touchdown.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    u: np.ndarray
+    forces: np.ndarray
+    height: np.ndarray
+    roll: np.ndarray
+    pitch: np.ndarray
+    stats: LeggedStats = field(default_factory=LeggedStats)
+    not_walking: str | None = None
+    kind: str | None = None
+    touchdowns: list = field(default_factory=list)
+
+
+def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
+          v0: np.ndarray | None = None, duration: float = 2.0, rate_hz: float = 1000.0,
+          substeps: int = 1, checks: ContactChecks | None = None, push: Push | None = None,
+          plant: pin.Model | None = None,
+          schedule: Callable[[float], tuple[str, ...]] | None = None) -> StandLog:
+    """Roll the robot out on its feet for ``duration`` [s].
+
+    Args:
+        legged: The robot.
+        controller: Its controller (the known model is ``legged.model``).
+        q0, v0: The start state (every foot on the ground; they are held where they are).
+        duration: In [s].
+        rate_hz: Control rate [Hz].
+        substeps: Runge-Kutta sub-steps per control step.
+        checks: The contact checks (default: ``ContactChecks(effort=legged.effort)``).
+        push: A push on the base (the plant feels it, the controller does not).
+        plant: The plant's model when it differs from the known one (same joints and frames).
+        schedule: ``t [s] ->`` the feet meant to be in stance (default: all, always). A foot it
+            drops is released (:func:`~feltool.walking.legged.events.check_release`); a foot it
+            names that is in the air joins the stance at its touchdown
+            (:func:`~feltool.walking.legged.events.touchdown`), recorded in
+            :attr:`StandLog.touchdowns`.
+    """
+    chk = ContactChecks(effort=legged.effort) if checks is None else checks
+    contact = LeggedContact(legged, plant)
+    names = list(legged.feet)
+    stance = tuple(names)
+    pos0 = contact.positions(q0)
+    anchor = dict(zip(names, pos0))
+    q, v = contact.hold(np.array(q0, float), np.zeros(legged.nv) if v0 is None
+                        else np.array(v0, float), stance, pos0)
+    B, dt = legged.selection(), 1.0 / rate_hz
+    h = dt / substeps
+    n = int(round(duration * rate_hz))
+    st = LeggedStats()
+    rec = {key: [] for key in ("t", "q", "v", "u", "forces")}
+    touchdowns: list = []
+    reason = kind = None
+
+    def external(qq, t):
+        if push is None or not push.active(t):
+            return np.zeros(legged.nv)
+        pin.computeJointJacobians(contact.model, contact.data, qq)
+        Jb = pin.getJointJacobian(contact.model, contact.data, 1, pin.LOCAL_WORLD_ALIGNED)
+        return Jb.T @ np.r_[push.force, push.torque]
+
+    try:
+        for i in range(n):
+            t = i * dt
+            wanted = stance if schedule is None else \
+                tuple(f for f in names if f in schedule(t))
+            released = tuple(f for f in stance if f not in wanted)
+            stance = tuple(f for f in stance if f in wanted)
+            alloc = controller(q, v, stance, t)
+            u = check_torques(chk, st, alloc.u, legged.motors)
+            tau = B @ u
+            if released:
+                check_release(contact, q, v, tau + external(q, t), stance, released)
+            start = (q, v)
+            for s in range(substeps):
+                done = 0.0
+                while h - done > 1e-12:
+                    ts = t + s * h + done
+
+                    def forcing(qq, offset, ts=ts, tau=tau):
+                        return tau + external(qq, ts + offset)
+
+                    q, v, f1, landed, used = touchdown(contact, chk, st, q, v, forcing,
+                                                       h - done, stance, wanted)
+                    if stance:
+                        check_stance(chk, st, stance, f1)
+                    if s == 0 and done == 0.0:
+                        full = np.full((len(names), 3), np.nan)
+                        for f, fv in zip(stance, f1):
+                            full[names.index(f)] = fv
+                        for key, val in (("t", t), ("q", start[0]), ("v", start[1]), ("u", u),
+                                         ("forces", full)):
+                            rec[key].append(np.copy(val))
+                    if landed:
+                        stance = tuple(f for f in names if f in stance or f in landed)
+                        pos = contact.positions(q)
+                        for f in landed:
+                            anchor[f] = pos[names.index(f)]
+                        touchdowns.append((ts + used, landed))
+                    done = done + used if landed else h
+                    q, v = contact.hold(q, v, stance, np.array([anchor[f] for f in stance]))
+                    air = tuple(f for f in names if f not in stance)
+                    if air:
+                        check_air(chk, st, air,
+                                  contact.positions(q)[[names.index(f) for f in air], 2])
+            if not np.all(np.isfinite(q)) or not np.all(np.isfinite(v)):
+                raise NotWalking(f"the state is not finite at t = {t:.4g} s", "diverged")
+    except NotWalking as exc:
+        reason, kind = str(exc), exc.kind
+    Q = np.array(rec["q"]).reshape(-1, legged.nq)
+    rpy = np.array([pin.rpy.matrixToRpy(pin.XYZQUATToSE3(x[:7]).rotation) for x in Q]
+                   ).reshape(-1, 3)
+    return StandLog(t=np.array(rec["t"]), q=Q, v=np.array(rec["v"]), u=np.array(rec["u"]),
+                    forces=np.array(rec["forces"]), height=Q[:, 2], roll=rpy[:, 0],
+                    pitch=rpy[:, 1], stats=st, not_walking=reason, kind=kind,
+                    touchdowns=touchdowns)
