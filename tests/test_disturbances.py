@@ -62,12 +62,19 @@ def test_fel_learns_from_the_noisy_measurements_and_the_model_never_sees_them():
     np.testing.assert_allclose(log.u_err[:, 1], _stabilizing_pd(exp, log.q, log.v), atol=1e-10)
     e_true = _stabilizing_pd(exp, log.q_true, log.v_true)
     assert np.abs(log.u_err[:, 1] - e_true).std() > 0.3  # kp 0.01 sqrt(2) + kd 0.1 sqrt(2)
-    # FEL's update used that noisy error signal.
-    J = exp.learner.jacobian(known.inner, theta, Qd, Vd, Ad)
+    # FEL's update used that noisy error signal (the default step fits it through the known
+    # model's closed loop, learning.fit: closed_loop).
+    assert exp.learner.fit == "closed_loop"
+    derivs = known.inner.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
+    J = exp.learner.jacobian(known.inner, theta, Qd, Vd, Ad, derivs)
+
+    def step(E):
+        return exp.learner.closed_loop_step(theta, J, derivs, E, Qd, None)
+
     E_true = np.zeros_like(log.u_err)
     E_true[:, 1] = e_true
-    np.testing.assert_allclose(out.theta_next, exp.learner.step(theta, J, log.u_err), atol=1e-12)
-    assert not np.allclose(out.theta_next, exp.learner.step(theta, J, E_true), atol=1e-6)
+    np.testing.assert_allclose(out.theta_next, step(log.u_err), atol=1e-10)
+    assert not np.allclose(out.theta_next, step(E_true), atol=1e-6)
     # The known model was only asked about the desired trajectory, and never simulated.
     assert known.calls and all(name.startswith("inverse") for name, _ in known.calls)
     for _, args in known.calls:
