@@ -47,6 +47,12 @@ def estimate_bytes(cfg: ExperimentConfig, joints: list[str], n_bodies: int) -> i
         m = cfg.learning.model
         model = 10 * n_bodies if m.features == "regressor" else nv * m.basis
     per_sample = 20 * params + 6 * nv * learned + 4 * nv * nv + 30 * nv + 3 * nv * model
+    if cfg.learning.fit == "closed_loop" and cfg.walking is None:
+        # the closed-loop fit's sensitivities through the loop (feltool.learning.loop_map:
+        # per step 2 nv x learned state responses, their forcing and the error rows, and
+        # einsum temporaries), measured: 2550 and 23000 floats per step at 11 and 61 learned
+        # parameters on two joints (tests/test_physical.py)
+        per_sample += 100 * nv * learned + 3 * learned * learned
     compiled = 0
     if cfg.backend in ("auto", "compiled"):
         # the compiled engine's cycle data (each learned row twice, in three copies while
