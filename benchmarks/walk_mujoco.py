@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from feltool.engines.python import after_impacts
 from feltool.runs.experiments import load_experiment
 from feltool.runs.seed import run_seed
 
@@ -77,10 +78,7 @@ def one(job: tuple) -> dict:
         if cycle not in (1, cycles):
             return
         U = np.abs(log.u_fb).sum(axis=1)
-        n_w = int(round(WINDOW_S / exp.config.dt))
-        mask = np.zeros(len(U), bool)
-        for k in [0] + [k for k, _, _ in log.impacts]:
-            mask[k:k + n_w] = True
+        mask = after_impacts(log.impacts, len(U), int(round(WINDOW_S / exp.config.dt)))
         share[str(cycle)] = float(U[mask].sum() / U.sum()) if U.sum() > 0 else float("nan")
         if cycle == cycles:  # the last cycle's summed |feedback| [N m] in 25 bins of time
             profile[:] = [float(b.mean()) for b in np.array_split(U, 25)]

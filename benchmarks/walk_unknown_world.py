@@ -155,7 +155,7 @@ def impact_share(walker: str, world: str, cycles: int = 10, window_s: float = 0.
     mean summed feedback [N m] and the share of it in the ``window_s`` after each touchdown
     (the cycle starts at one)."""
     from feltool.config.events import EventConfig
-    from feltool.engines.python import hybrid_cycle
+    from feltool.engines.python import after_impacts, hybrid_cycle
     from feltool.plant.events import world_plant
     from feltool.runs.seed import initial_state
 
@@ -173,10 +173,7 @@ def impact_share(walker: str, world: str, cycles: int = 10, window_s: float = 0.
     P, Pv, Pa = exp.primitives.desired(st.theta)
     log = exp.hybrid.run_cycle(plant, q, v, P, Pv, Pa)
     U = np.abs(log.u_err).sum(axis=1)
-    w = int(round(window_s / exp.config.dt))
-    near = np.zeros(len(U), bool)
-    for start in [0] + [i for i, _, _ in log.impacts[:-1]]:
-        near[start:start + w] = True
+    near = after_impacts(log.impacts, len(U), int(round(window_s / exp.config.dt)))
     return {"walker": walker, "world": world, "fb": float(U.mean()),
             "share_after_touchdowns": float(U[near].sum() / U.sum()),
             "time_share": float(near.mean())}

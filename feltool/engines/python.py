@@ -194,11 +194,18 @@ def impact_masked(exp: Experiment, log, E: np.ndarray | None = None) -> np.ndarr
     if window <= 0 or not log.impacts:
         return E
     E = E.copy()
-    n = int(round(window / exp.config.dt))
-    for k, _, _ in log.impacts:  # k: first sample after the impact; the cycle's last impact
-        k %= len(E)              # starts the next cycle, whose first samples follow it
-        E[k:k + n] = 0.0
+    E[after_impacts(log.impacts, len(E), int(round(window / exp.config.dt)))] = 0.0
     return E
+
+
+def after_impacts(impacts: list, n: int, window: int) -> np.ndarray:
+    """The cycle's ``n`` samples within ``window`` samples after each impact, as a mask; the
+    cycle's last impact starts the next cycle, whose first samples follow it."""
+    mask = np.zeros(n, bool)
+    for k, _, _ in impacts:  # k: first sample after the impact
+        k %= n
+        mask[k:k + window] = True
+    return mask
 
 
 def model_cycle(exp: Experiment, theta: np.ndarray, q, v, theta_m: np.ndarray,
@@ -316,6 +323,6 @@ def per_step_cycle(exp: Experiment, theta: np.ndarray, q, v, states: dict[int, t
     return out
 
 
-__all__ = ["contact_metrics", "error_torques", "hybrid_cycle", "impact_masked",
+__all__ = ["after_impacts", "contact_metrics", "error_torques", "hybrid_cycle", "impact_masked",
            "limit_cycle_states", "model_cycle", "motor_step", "cycle_outcome", "per_cycle",
            "per_step_cycle"]
