@@ -209,6 +209,17 @@ class ExperimentConfig(Strict):
         return [(i, ev) for i, ev in enumerate(self.events) if not ev.changes_world]
 
     @property
+    def closed_loop_fit(self) -> bool:
+        """Whether the config asks for the closed-loop Gauss-Newton fit and its learner can give
+        it (``learning.fit: closed_loop``, :mod:`feltool.learning.loop_map`): an arm (no walking
+        or actuation block, no model learning) learning per cycle with update gauss_newton. The
+        assembly adds what only the built experiment knows (plain joint coordinates, no phase
+        events)."""
+        L = self.learning
+        return (L.fit == "closed_loop" and L.update == "gauss_newton" and L.step == "per_cycle"
+                and self.walking is None and self.actuation is None and L.model is None)
+
+    @property
     def robot_source(self) -> str:
         """The robot as ``robot`` names it (bundled name, URDF path or example-robot-data:NAME)."""
         return self.robot if isinstance(self.robot, str) else self.robot.source

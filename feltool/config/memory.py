@@ -47,7 +47,7 @@ def estimate_bytes(cfg: ExperimentConfig, joints: list[str], n_bodies: int) -> i
         m = cfg.learning.model
         model = 10 * n_bodies if m.features == "regressor" else nv * m.basis
     per_sample = 20 * params + 6 * nv * learned + 4 * nv * nv + 30 * nv + 3 * nv * model
-    if cfg.learning.fit == "closed_loop" and cfg.walking is None:
+    if cfg.closed_loop_fit:
         # the closed-loop fit's sensitivities through the loop (feltool.learning.loop_map:
         # per step 2 nv x learned state responses, their forcing and the error rows, and
         # einsum temporaries), measured: 2550 and 23000 floats per step at 11 and 61 learned

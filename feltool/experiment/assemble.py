@@ -405,12 +405,10 @@ def closed_loop_fit(cfg: ExperimentConfig, hybrid, model_learner, dynamics) -> b
     block, plain joint coordinates) learning per cycle with update gauss_newton and no
     inverse-model correction, and no period events or adaptive phase (a period of no whole
     number of steps is fine: each cycle's map is its own); the others fit the feedforward."""
-    L = cfg.learning
     events = [where for where, _ in varying_phase(cfg)  # (a fractional period_s is fine)
               if where != "period_s" and not where.endswith((".amplitude", ".goal"))]
-    return (L.fit == "closed_loop" and L.update == "gauss_newton" and L.step == "per_cycle"
-            and hybrid is None and model_learner is None and dynamics.euclidean
-            and not events)
+    return (cfg.closed_loop_fit and hybrid is None and model_learner is None
+            and dynamics.euclidean and not events)
 
 
 def _check_phase(cfg: ExperimentConfig, joints: list[str], robot: Robot, fixed: set[str],
