@@ -1,5 +1,6 @@
 """3D legged robots on a free-flyer base: the model with its named point feet (:mod:`.model`),
 the contact dynamics of any set of stance feet and their rigid impacts (:mod:`.contact`), the
+rigid impact with unilateral contacts, a QP in the impulses (:mod:`.impact`), the
 contact checks of the planar walker generalised to 3D (:mod:`.checks`), the standing controller
 with its QP allocation under the stance contacts (:mod:`.control`), feet leaving and reaching
 the ground (:mod:`.events`) and the closed loop that steps the robot standing, pushed, on a

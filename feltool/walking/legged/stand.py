@@ -133,8 +133,8 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                     def forcing(qq, offset, ts=ts, tau=tau):
                         return tau + external(qq, ts + offset)
 
-                    q, v, f1, landed, used = touchdown(contact, chk, st, q, v, forcing,
-                                                       h - done, stance, wanted)
+                    q, v, f1, landed, used, after = touchdown(contact, chk, st, q, v, forcing,
+                                                              h - done, stance, wanted)
                     if stance:
                         check_stance(chk, st, stance, f1)
                     if s == 0 and done == 0.0:
@@ -145,9 +145,9 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                                          ("forces", full)):
                             rec[key].append(np.copy(val))
                     if landed:
-                        stance = tuple(f for f in names if f in stance or f in landed)
+                        stance = tuple(f for f in names if f in after)
                         pos = contact.positions(q)
-                        for f in landed:
+                        for f in (f for f in landed if f in stance):
                             anchor[f] = pos[names.index(f)]
                         touchdowns.append((ts + used, landed))
                     done = done + used if landed else h
