@@ -58,11 +58,15 @@ def check_release(contact: LeggedContact, q: np.ndarray, v: np.ndarray, tau: np.
 
 
 def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v, tau,
-              h: float, stance: tuple[str, ...], wanted: tuple[str, ...]):
+              h: float, stance: tuple[str, ...], wanted: tuple[str, ...],
+              window: float = 0.0):
     """One sub-step of length ``h`` with the feet ``stance`` held, ending at the first touchdown
     of a ``wanted`` foot in the air: ``(q, v, forces, landed feet, the time it took [s], the
     stance after it)``; the velocities are after the impact when a foot landed, and the stance
-    after it is the feet that kept an impulse (``stance`` when none landed)."""
+    after it is the feet that kept an impulse (``stance`` when none landed). ``window`` [s]
+    resolves the impact over a Moreau-Jean step of at most that length (the rest of the
+    sub-step bounds it; :func:`~feltool.walking.legged.impact.unilateral_impact`), the
+    configuration advanced by it and the time it took included."""
     names = list(contact.legged.feet)
     air = [f for f in wanted if f not in stance]
     q1, v1, forces = rk4(contact, q, v, tau, h, stance)
@@ -88,7 +92,9 @@ def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v,
         if vel[names.index(foot), 2] >= 0.0:
             raise NotWalking(f"the foot {foot} reaches the ground moving up", "touchdown")
     ground = tuple(f for f in names if f in stance or f in landed)
-    imp = unilateral_impact(contact, qs, vs, ground, chk.friction)
+    delta = min(window, h - first)
+    imp = unilateral_impact(contact, qs, vs, ground, chk.friction, tau=tau(qs, first),
+                            window=delta)
     for foot in imp.sliding:
         raise NotWalking(f"the foot {foot} slides at the touchdown (its impulse on the friction "
                          f"cone's edge, walking.friction = {chk.friction})", "impulse")
@@ -97,4 +103,6 @@ def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v,
                  imp.normal_velocity[[ground.index(f) for f in imp.leaving]],
                  energy_lost=imp.energy_lost)
     st.impacts_released += len([f for f in imp.leaving if f in stance])
-    return qs, imp.v, forces, landed, first, imp.held
+    if delta > 0.0:
+        qs = pin.integrate(contact.model, qs, delta * imp.v)
+    return qs, imp.v, forces, landed, first + max(delta, 0.0), imp.held

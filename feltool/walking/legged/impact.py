@@ -33,6 +33,15 @@ on the pyramid's boundary *slides* (the QP's dual-cone velocity of a sliding con
 it, by about :math:`\mu` times the slip speed: Anitescu's relaxation): such an impact is
 reported in :attr:`UnilateralImpact.sliding`; the walker's checks call it not walking.
 
+**A window of the forces.** Rigid impacts couple every foot: a landing foot's impulse gives the
+feet already loaded in stance tiny impulses (1e-5 N s against its 5e-3) in any direction, which
+a strict cone check calls sliding although their load (12 N, 1.2e-3 N s in 0.1 ms) would hold
+them. With ``window`` :math:`\delta > 0` [s] the impact is one Moreau-Jean step of that length:
+the generalized force ``tau`` and the bias :math:`b` (Pinocchio's ``nonLinearEffects``) act
+over it, :math:`\dot q^- \to \dot q^- + \delta M^{-1}(\tau - b)` before the same QP, and the
+"impulses" are the feet's impulses over the window, their loads included. :math:`\delta = 0`
+is the instantaneous impact above.
+
 **Exact polish.** The QP finds which feet keep an impulse; the impact is then recomputed
 exactly by ``pin.impulseDynamics`` on those feet alone and accepted when it satisfies every
 condition above (their impulses inside the pyramid, the other feet not moving down), so a
@@ -65,7 +74,8 @@ class UnilateralImpact:
         leaving: The feet with no impulse: they leave the ground (normal velocity >= 0).
         sliding: Held feet whose impulse is on the friction pyramid's boundary (they slip).
         normal_velocity: ``(n,)`` the feet's vertical velocities after the impact [m/s].
-        energy_lost: Kinetic energy before minus after, in [J] (>= 0).
+        energy_lost: Kinetic energy before minus after, in [J] (>= 0 for an instantaneous
+            impact; over a window it includes the forces' work).
         exact: True when the result is ``pin.impulseDynamics`` on :attr:`held` (the polish
             was accepted), False when it is the QP's own solution.
     """
@@ -96,7 +106,8 @@ def polygon_cone(n: int, friction: float, faces: int = 8) -> np.ndarray:
 
 def unilateral_impact(contact: LeggedContact, q: np.ndarray, v: np.ndarray,
                       feet: tuple[str, ...], friction: float = 0.7, faces: int = 8,
-                      tol: float = 1e-9) -> UnilateralImpact:
+                      tol: float = 1e-9, tau: np.ndarray | None = None,
+                      window: float = 0.0) -> UnilateralImpact:
     """The impact of the candidate ``feet`` at ``(q, v)`` (the QP above, then the exact polish).
 
     Args:
@@ -108,6 +119,10 @@ def unilateral_impact(contact: LeggedContact, q: np.ndarray, v: np.ndarray,
         faces: The polygon's number of faces.
         tol: Relative tolerance: a normal impulse below ``tol`` times the largest is zero, a
             normal velocity above ``-tol`` times the largest approach speed is not moving down.
+        tau: Generalized force ``(nv,)`` acting over the ``window`` (motor torques, external
+            forces; default zero).
+        window: :math:`\\delta` [s], the Moreau-Jean step the impact is resolved over (0: the
+            instantaneous impact). The caller advances the configuration by it.
     """
     feet = tuple(feet)
     m, d = contact.model, contact.data
@@ -115,6 +130,11 @@ def unilateral_impact(contact: LeggedContact, q: np.ndarray, v: np.ndarray,
     M = np.array(pin.crba(m, d, q))
     M = np.triu(M) + np.triu(M, 1).T
     cho = cho_factor(M)
+    v_in = np.array(v, float)
+    if window > 0.0:
+        b = np.array(pin.nonLinearEffects(m, d, q, v_in))
+        force = -b if tau is None else np.asarray(tau, float) - b
+        v = v_in + window * cho_solve(cho, force)
     J = contact.jacobian(q, feet)
     c = J @ v
     MJ = cho_solve(cho, J.T)
@@ -128,11 +148,12 @@ def unilateral_impact(contact: LeggedContact, q: np.ndarray, v: np.ndarray,
     if lam is None:  # proxqp stopped short: the pyramid always holds 0, the energy's minimum
         lam = np.zeros(3 * n)
     lam = np.asarray(lam, float)
-    before = contact.kinetic_energy(q, v)
+    before = contact.kinetic_energy(q, v_in)
     speed = max(float(np.abs(c).max(initial=0.0)), 1e-300)
     scale = max(float(np.abs(lam).max(initial=0.0)), 1e-300)
     held = tuple(f for f, lz in zip(feet, lam[2::3]) if lz > tol * scale)
-    result = _polish(contact, q, v, feet, held, polygon_cone(n, friction, faces), tol * speed)
+    result = _polish(contact, q, v, feet, held, polygon_cone(n, friction, faces), tol * speed,
+                     before)
     if result is None:
         lam = _refine(G, c, A, lam)
         v_plus = v + MJ @ lam
@@ -165,7 +186,7 @@ def _refine(G: np.ndarray, c: np.ndarray, A: np.ndarray, lam: np.ndarray) -> np.
     return exact if np.all(A @ exact <= 1e-12 * size) else lam
 
 
-def _polish(contact: LeggedContact, q, v, feet, held, A, vtol) -> UnilateralImpact | None:
+def _polish(contact: LeggedContact, q, v, feet, held, A, vtol, before) -> UnilateralImpact | None:
     """``pin.impulseDynamics`` on the ``held`` feet, if it satisfies the complementarity (their
     normal impulses positive and in the cones ``A``, every other candidate foot not moving
     down); else None. When the QP's guess of ``held`` is off at its tolerance, a few
@@ -194,6 +215,6 @@ def _polish(contact: LeggedContact, q, v, feet, held, A, vtol) -> UnilateralImpa
         elif np.any(A @ imp.ravel() > 0.0):
             return None
         else:
-            lost = contact.kinetic_energy(q, v) - contact.kinetic_energy(q, v_plus)
+            lost = before - contact.kinetic_energy(q, v_plus)
             return UnilateralImpact(v_plus, imp, feet, held, leaving, (), vz, lost, True)
     return None
