@@ -64,9 +64,9 @@ def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v,
     of a ``wanted`` foot in the air: ``(q, v, forces, landed feet, the time it took [s], the
     stance after it)``; the velocities are after the impact when a foot landed, and the stance
     after it is the feet that kept an impulse (``stance`` when none landed). ``window`` [s]
-    resolves the impact over a Moreau-Jean step of at most that length (the rest of the
-    sub-step bounds it; :func:`~feltool.walking.legged.impact.unilateral_impact`), the
-    configuration advanced by it and the time it took included."""
+    resolves the impact over a Moreau-Jean step of that length
+    (:func:`~feltool.walking.legged.impact.unilateral_impact`), the configuration advanced by
+    it and the time it took included (it may reach past the sub-step)."""
     names = list(contact.legged.feet)
     air = [f for f in wanted if f not in stance]
     q1, v1, forces = rk4(contact, q, v, tau, h, stance)
@@ -92,7 +92,7 @@ def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v,
         if vel[names.index(foot), 2] >= 0.0:
             raise NotWalking(f"the foot {foot} reaches the ground moving up", "touchdown")
     ground = tuple(f for f in names if f in stance or f in landed)
-    delta = min(window, h - first)
+    delta = window
     imp = unilateral_impact(contact, qs, vs, ground, chk.friction, tau=tau(qs, first),
                             window=delta)
     for foot in imp.sliding:

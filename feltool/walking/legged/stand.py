@@ -120,6 +120,7 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
         Jb = pin.getJointJacobian(contact.model, contact.data, 1, pin.LOCAL_WORLD_ALIGNED)
         return Jb.T @ np.r_[push.force, push.torque]
 
+    carry = 0.0  # an impact's window reaching past its sub-step, taken from the next one
     try:
         for i in range(n):
             t = i * dt
@@ -133,8 +134,9 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
             if released:
                 check_release(contact, q, v, tau + external(q, t), stance, released)
             start = (q, v)
+            recorded = False
             for s in range(substeps):
-                done = 0.0
+                done, carry = carry, 0.0
                 while h - done > 1e-12:
                     ts = t + s * h + done
 
@@ -146,7 +148,8 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                                                               impact_window)
                     if stance:
                         check_stance(chk, st, stance, f1)
-                    if s == 0 and done == 0.0:
+                    if not recorded:
+                        recorded = True
                         full = np.full((len(names), 3), np.nan)
                         for f, fv in zip(stance, f1):
                             full[names.index(f)] = fv
@@ -177,6 +180,7 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                     if air:
                         check_air(chk, st, air,
                                   contact.positions(q)[[names.index(f) for f in air], 2])
+                carry = max(0.0, done - h)
             if not np.all(np.isfinite(q)) or not np.all(np.isfinite(v)):
                 raise NotWalking(f"the state is not finite at t = {t:.4g} s", "diverged")
     except NotWalking as exc:

@@ -139,10 +139,14 @@ class TrotController(StandingController):
     Args (beyond :class:`StandingController`'s):
         gait: The trot.
         horizontal: ``(k [N/m], d [N s/m])`` on the base's horizontal position and velocity.
+        swing_gains: ``(k [N/m], d [N s/m])`` of a Cartesian PD pulling each foot in the air
+            to its target in the world (through its leg's joints, :math:`J^\\top F`), so it
+            lands with the landing velocity although the base is not where it was meant to be.
     """
 
     gait: TrotGait = field(default_factory=TrotGait)
     horizontal: tuple[float, float] = (100.0, 10.0)
+    swing_gains: tuple[float, float] = (300.0, 10.0)
 
     def __post_init__(self):
         super().__post_init__()
@@ -159,6 +163,7 @@ class TrotController(StandingController):
         self.stepping = {f: False for f in self.names}
         self._stance = tuple(self.names)
         self._q_ik = self.q_ref.copy()
+        self._t = 0.0
 
     def _base(self, t: float) -> np.ndarray:
         x = self.gait.base_x(t)[0]
@@ -251,10 +256,24 @@ class TrotController(StandingController):
         f[:2] = k * (goal.translation[:2] - base.translation[:2]) + d * (lin_d[:2] - lin[:2])
         pin.computeJointJacobians(self.model, self.data, q)
         Jb = pin.getJointJacobian(self.model, self.data, 1, pin.LOCAL_WORLD_ALIGNED)
-        return out + Jb.T @ f
+        out += Jb.T @ f
+        air = [f for f in self.names if f not in self._stance]
+        if air:  # the feet in the air follow their targets in the world, not from the base
+            kp, kd = self.swing_gains
+            P, V = self.contact.foot_states(q, v)
+            e = 1e-4
+            Pd, Pm, Pp = self._feet(self._t), self._feet(self._t - e), self._feet(self._t + e)
+            Vd = (Pp - Pm) / (2 * e)
+            J = self.contact.jacobian(q, tuple(air))
+            for k, foot in enumerate(air):
+                i = self.names.index(foot)
+                F = kp * (Pd[i] - P[i]) + kd * (Vd[i] - V[i])
+                out[6:] += (J[3 * k:3 * k + 3].T @ F)[6:]
+        return out
 
     def __call__(self, q: np.ndarray, v: np.ndarray, feet: tuple[str, ...], t: float = 0.0):
         self._update(q, v, tuple(feet), t)
+        self._t = t
         e = 1e-4
         qm, qc, qp = self.pose(t - e), self.pose(t), self.pose(t + e)
         self._q_ik = qc
