@@ -25,7 +25,7 @@ def solo():
 
 def test_the_pairs_switch_when_both_swing_feet_are_down():
     g = TrotGait(period=0.3, start=0.1, catch=0.5)
-    assert g.schedule(0.05) == FEET[:1] + ("HR", "FR", "HL") or set(g.schedule(0.05)) == set(FEET)
+    assert set(g.schedule(0.05)) == set(FEET)  # standing before the start
     assert g.schedule(0.12) == PAIRS[0]  # (FR, HL) swings first, not wanted early
     assert set(g.schedule(0.1 + 0.076)) == set(FEET)  # from half its swing on: wanted back
     g.touchdown(0.2, ("HL",))
