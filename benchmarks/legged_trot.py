@@ -9,7 +9,10 @@ it stays physical for the whole run (or the check that stops it, and when), the 
 speed over the second half, the worst roll and pitch, the least normal force, the largest
 friction and impulse ratios and torque, the lowest swing apex (every foot lifts off), the steps
 and the loop's wall time per simulated second (the machine's load matters: say it with the
-numbers). Then seed 0 with instantaneous impacts (no Moreau-Jean window) for comparison.
+numbers), and a Poincare section of the base's state (once per cycle): its distance to the
+last cycle's after the speed ramp, how much it shrinks per cycle over the next four, and the
+floor it settles to. Then seed 0 with instantaneous impacts (no Moreau-Jean window) for
+comparison.
 
 Usage: ``python benchmarks/legged_trot.py [--duration 20] [--seeds 10] [--speed 0.3]``
 """
@@ -24,10 +27,38 @@ import argparse  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+import pinocchio as pin  # noqa: E402
 
 from feltool.walking.legged.model import load_solo12  # noqa: E402
 from feltool.walking.legged.stand import stand  # noqa: E402
-from feltool.walking.legged.trot import TrotController, TrotGait  # noqa: E402
+from feltool.walking.legged.trot import PAIRS, TrotController, TrotGait  # noqa: E402
+
+
+def section(log, gait: TrotGait) -> tuple[float, float, float]:
+    """The base's state at a Poincare section (the control step after each time the pair
+    (FL, HR) completes its touchdown): x minus the desired x, y, z, roll, pitch, yaw and the
+    base's 6 velocities. Returns the distance to the last cycle's at the first section after
+    the ramp, the per-cycle shrink factor over the next four cycles, and the median distance of
+    the last ten (the floor the 1 kHz steps and event times leave)."""
+    down, sw, rows, times = set(), 1, [], []
+    for t, feet in log.touchdowns:
+        down |= set(feet) & set(PAIRS[sw])
+        if down != set(PAIRS[sw]):
+            continue
+        if sw == 0:
+            k = int(np.searchsorted(log.t, t)) + 1
+            if k < len(log.t):
+                q, v = log.q[k], log.v[k]
+                rpy = pin.rpy.matrixToRpy(pin.XYZQUATToSE3(q[:7]).rotation)
+                rows.append(np.r_[q[0] - gait.base_x(log.t[k])[0], q[1:3], rpy, v[:6]])
+                times.append(t)
+        sw, down = 1 - sw, set()
+    if len(rows) < 16:
+        return np.nan, np.nan, np.nan
+    X = np.array(rows)
+    d = np.linalg.norm(X - X[-1], axis=1)
+    k0 = int(np.searchsorted(times, gait.start + gait.ramp + 0.1))
+    return float(d[k0]), float((d[k0 + 4] / d[k0]) ** 0.25), float(np.median(d[-11:-1]))
 
 
 def run(solo, seed: int, duration: float, speed: float, window: float = 1e-4) -> str:
@@ -59,11 +90,12 @@ def run(solo, seed: int, duration: float, speed: float, window: float = 1e-4) ->
             up = top[top > 0.005]
             if up.size:
                 apex = min(apex, float(up.min()))
+    d0, rate, floor = section(log, gait)
     return (f"{seed:4d} {result:22s} {log.t[-1] + 1e-3:6.2f} {mean:6.3f} "
             f"{np.abs(log.roll).max():7.4f} {np.abs(log.pitch).max():7.4f} "
             f"{st.min_normal_force:6.3f} {st.max_friction_ratio:5.3f} "
             f"{st.max_impulse_ratio:5.3f} {st.max_torque:5.2f} {apex * 1e3:6.1f} {gait.steps:5d} "
-            f"{wall / max(log.t[-1], 1e-3):6.2f}")
+            f"{d0:8.1e} {rate:5.2f} {floor:8.1e} {wall / max(log.t[-1], 1e-3):6.2f}")
 
 
 def main() -> None:
@@ -78,7 +110,8 @@ def main() -> None:
     print(f"Solo-12 trot at {args.speed} m/s for {args.duration} s, 1 kHz, checks on")
     header = (f"{'seed':>4s} {'result':22s} {'t [s]':>6s} {'v [m/s]':>6s} {'roll':>7s} "
               f"{'pitch':>7s} {'min fn':>6s} {'fric':>5s} {'imp':>5s} {'|u|':>5s} "
-              f"{'apex mm':>6s} {'steps':>5s} {'wall/s':>6s}")
+              f"{'apex mm':>6s} {'steps':>5s} {'d post':>8s} {'rate':>5s} {'floor':>8s} "
+              f"{'wall/s':>6s}")
     print(header)
     for seed in range(args.seeds):
         print(run(solo, seed, args.duration, args.speed), flush=True)
