@@ -65,9 +65,9 @@ class TrotGait:
     start: float = 0.1
     step_height: float = 0.04
     sink: float = 0.003
-    landing_speed: float = 0.1
+    landing_speed: float = 0.2
     raibert: float = 0.03
-    catch: float = 0.5
+    catch: float = 0.2
 
     def base_x(self, t: float) -> tuple[float, float, float]:
         """Desired forward position [m], speed [m/s] and acceleration [m/s^2] at ``t`` [s]."""
@@ -146,7 +146,7 @@ class TrotController(StandingController):
 
     gait: TrotGait = field(default_factory=TrotGait)
     horizontal: tuple[float, float] = (100.0, 10.0)
-    swing_gains: tuple[float, float] = (300.0, 10.0)
+    swing_gains: tuple[float, float] = (600.0, 20.0)
 
     def __post_init__(self):
         super().__post_init__()
