@@ -75,7 +75,10 @@ def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v,
     idx = [names.index(f) for f in air]
     z0 = contact.positions(q)[idx, 2]
     z1 = contact.positions(q1)[idx, 2]
-    crossing = [i for i in range(len(air)) if z0[i] > 0.0 >= z1[i]]
+    # a wanted foot already on the ground (an impact window can carry it there) lands now
+    vz0 = contact.foot_states(q, v)[1][idx, 2]
+    now = [i for i in range(len(air)) if z0[i] <= 0.0 and vz0[i] < 0.0]
+    crossing = now + [i for i in range(len(air)) if z0[i] > 0.0 >= z1[i]]
     if not crossing:
         return q1, v1, forces, (), h, tuple(stance)
 
@@ -83,7 +86,8 @@ def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v,
         qs, _, _ = rk4(contact, q, v, tau, s, stance)
         return contact.positions(qs)[idx[i], 2]
 
-    times = {i: brentq(height, 0.0, h, args=(i,), xtol=1e-12) for i in crossing}
+    times = {i: 0.0 if i in now else brentq(height, 0.0, h, args=(i,), xtol=1e-12)
+             for i in crossing}
     first = min(times.values())
     landed = tuple(air[i] for i in crossing if times[i] - first < 1e-9)
     qs, vs, _ = rk4(contact, q, v, tau, first, stance)
