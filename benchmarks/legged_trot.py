@@ -84,18 +84,16 @@ def run(solo, seed: int, duration: float, speed: float, push_n: float,
     result = "physical" if log.not_walking is None else f"{log.kind} at {log.t[-1]:.3f} s"
     half = len(log.t) // 2
     mean = (log.q[-1, 0] - log.q[half, 0]) / max(log.t[-1] - log.t[half], 1e-9)
-    heights = np.array([solo.foot_positions(x)[:, 2] for x in log.q[::5]])
-    # each swing's apex: the highest point between touchdowns, per foot, the lowest of them
+    heights = np.array([solo.foot_positions(x)[:, 2] for x in log.q])
+    # each swing's apex (a foot in the air from one control step to its next touchdown), the
+    # lowest of them: every foot lifts off
+    air = np.isnan(log.forces[:, :, 2])
     apex = np.inf
-    times = [0.0] + [t for t, _ in log.touchdowns] + [log.t[-1]]
-    tt = log.t[::5]
-    for a, b in zip(times, times[1:]):
-        sel = (tt >= a) & (tt < b)
-        if sel.any():
-            top = heights[sel].max(0)
-            up = top[top > 0.005]
-            if up.size:
-                apex = min(apex, float(up.min()))
+    for j in range(air.shape[1]):
+        edges = np.flatnonzero(np.diff(np.r_[0, air[:, j].astype(int), 0]))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b < len(log.t):  # a finished swing
+                apex = min(apex, float(heights[a:b, j].max()))
     d0, rate, floor = section(log, gait)
     return (f"{seed:4d} {when:5.2f} {np.degrees(angle):4.0f} {result:22s} "
             f"{log.t[-1] + 1e-3:6.2f} {mean:6.3f} "
