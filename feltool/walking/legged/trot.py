@@ -26,7 +26,8 @@ the foot lifts off; horizontally a quintic smoothstep done at ``0.8`` of the swi
 a :math:`\sin^2` up to ``step_height`` [m] at 0.4 (it accelerates up from the start, so the
 released foot lifts off) and a quintic down that reaches ``-sink`` [m] at
 the swing's end moving down at ``landing_speed`` [m/s] (so it lands gently, a little before
-the end).
+the end). Its last ``approach_height`` [m] is a straight line at that velocity, so a foot that
+lands a little early still lands along it.
 """
 
 from __future__ import annotations
@@ -56,6 +57,8 @@ class TrotGait:
         sink: How far below the ground the swing target ends [m].
         landing_speed: The swing target's downward speed at its end [m/s].
         raibert: Raibert's gain on the base's velocity error [s].
+        approach_height: The last height above the ground [m] the swing target covers in a
+            straight line at the landing velocity (an early touchdown still lands along it).
         catch: Fraction of a swing after which the foot is wanted back on the ground [-].
     """
 
@@ -67,6 +70,7 @@ class TrotGait:
     sink: float = 0.003
     landing_speed: float = 0.2
     raibert: float = 0.03
+    approach_height: float = 0.005
     catch: float = 0.2
 
     def base_x(self, t: float) -> tuple[float, float, float]:
@@ -182,21 +186,23 @@ class TrotController(StandingController):
             if f in self._stance:
                 continue
             p0, p1, d = self.lift[f], self.target[f], self.approach[f]
-            s = (t - self.t_lift[f]) / ts
-            height = g.step_height if self.stepping[f] else 0.0
-            if s >= land:  # past the planned touchdown: on along the landing velocity
-                P[i] = p1 + d * (t - self.t_lift[f] - land * ts)
+            tau = t - self.t_lift[f]
+            if not self.stepping[f]:  # lifted by an impact while in stance: back down
+                P[i] = p0 + d * tau
                 continue
-            T = land * ts
-            P[i, :2] = _hermite5(s / land, p0[:2], p1[:2], d[:2] * T) if self.stepping[f] \
-                else p0[:2] + d[:2] * (t - self.t_lift[f])
-            if not self.stepping[f]:
-                P[i, 2] = p0[2] + d[2] * (t - self.t_lift[f])
-            elif s < 0.4:  # sin^2: it starts accelerating up at once
-                P[i, 2] = p0[2] + (height - p0[2]) * np.sin(0.5 * np.pi * s / 0.4) ** 2
+            # the last approach_height above the ground: a straight line along d
+            t_c = land * ts - g.approach_height / -d[2]
+            p_c = p1 + d * (t_c - land * ts)
+            if tau >= t_c:
+                P[i] = p_c + d * (tau - t_c)
+                continue
+            P[i, :2] = _hermite5(tau / t_c, p0[:2], p_c[:2], d[:2] * t_c)
+            t_up = 0.4 * ts
+            if tau < t_up:  # sin^2: it starts accelerating up at once
+                P[i, 2] = p0[2] + (g.step_height - p0[2]) * np.sin(0.5 * np.pi * tau / t_up) ** 2
             else:
-                P[i, 2] = _hermite5((s - 0.4) / (land - 0.4), height, 0.0,
-                                    d[2] * (land - 0.4) * ts)
+                P[i, 2] = _hermite5((tau - t_up) / (t_c - t_up), g.step_height, p_c[2],
+                                    d[2] * (t_c - t_up))
         return P
 
     def pose(self, t: float) -> np.ndarray:
