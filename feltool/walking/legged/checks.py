@@ -35,6 +35,8 @@ class LeggedStats:
         max_impulse_ratio: Largest :math:`\\|\\iota_t\\|/\\iota_z` at a touchdown [-].
         energy_lost: Kinetic energy lost in the impacts [J].
         torque_hits: Control steps with a clipped torque (``torques: saturate``).
+        impacts_released: Feet in stance before a touchdown that its unilateral impact lifted
+            off the ground (no impulse, moving up).
     """
 
     min_normal_force: float = np.inf
@@ -44,6 +46,7 @@ class LeggedStats:
     max_impulse_ratio: float = 0.0
     energy_lost: float = 0.0
     torque_hits: int = 0
+    impacts_released: int = 0
 
 
 def check_stance(chk: ContactChecks, st: LeggedStats, feet: tuple[str, ...],

@@ -6,9 +6,12 @@ touchdown located inside a sub-step.
   contact, :math:`\ge 0`; kind ``lift_off``).
 - **Touchdown**: a foot in the air that the schedule wants in stance, its height crossing
   :math:`z = 0` moving down within a sub-step, is located by Brent's method on the sub-step's
-  length (to 1e-12 s); the rigid impact of the held feet plus it (``pin.impulseDynamics``) is
-  checked (:func:`~feltool.walking.legged.checks.check_impact`) and it joins the stance,
-  anchored where it landed.
+  length (to 1e-12 s); the rigid impact of the held feet plus it, with **unilateral** contacts
+  (:func:`~feltool.walking.legged.impact.unilateral_impact`: a foot the ground would have to
+  pull gets no impulse and leaves), is checked
+  (:func:`~feltool.walking.legged.checks.check_impact`: the held feet's impulses push and stay
+  in the cone, none slides, the feet leaving move up); the feet that keep an impulse are the
+  stance after it, the landed ones anchored where they landed.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from scipy.optimize import brentq
 from feltool.walking.checks import ContactChecks, NotWalking
 from feltool.walking.legged.checks import LeggedStats, check_impact
 from feltool.walking.legged.contact import LeggedContact
+from feltool.walking.legged.impact import unilateral_impact
 
 
 def rk4(contact: LeggedContact, q: np.ndarray, v: np.ndarray, tau, h: float,
@@ -54,27 +58,36 @@ def check_release(contact: LeggedContact, q: np.ndarray, v: np.ndarray, tau: np.
 
 
 def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v, tau,
-              h: float, stance: tuple[str, ...], wanted: tuple[str, ...]):
+              h: float, stance: tuple[str, ...], wanted: tuple[str, ...],
+              window: float = 0.0):
     """One sub-step of length ``h`` with the feet ``stance`` held, ending at the first touchdown
-    of a ``wanted`` foot in the air: ``(q, v, forces, landed feet, the time it took [s])``;
-    the velocities are after the impact when a foot landed."""
+    of a ``wanted`` foot in the air: ``(q, v, forces, landed feet, the time it took [s], the
+    stance after it)``; the velocities are after the impact when a foot landed, and the stance
+    after it is the feet that kept an impulse (``stance`` when none landed). ``window`` [s]
+    resolves the impact over a Moreau-Jean step of that length
+    (:func:`~feltool.walking.legged.impact.unilateral_impact`), the configuration advanced by
+    it and the time it took included (it may reach past the sub-step)."""
     names = list(contact.legged.feet)
     air = [f for f in wanted if f not in stance]
     q1, v1, forces = rk4(contact, q, v, tau, h, stance)
     if not air:
-        return q1, v1, forces, (), h
+        return q1, v1, forces, (), h, tuple(stance)
     idx = [names.index(f) for f in air]
     z0 = contact.positions(q)[idx, 2]
     z1 = contact.positions(q1)[idx, 2]
-    crossing = [i for i in range(len(air)) if z0[i] > 0.0 >= z1[i]]
+    # a wanted foot already on the ground (an impact window can carry it there) lands now
+    vz0 = contact.foot_states(q, v)[1][idx, 2]
+    now = [i for i in range(len(air)) if z0[i] <= 0.0 and vz0[i] < 0.0]
+    crossing = now + [i for i in range(len(air)) if z0[i] > 0.0 >= z1[i]]
     if not crossing:
-        return q1, v1, forces, (), h
+        return q1, v1, forces, (), h, tuple(stance)
 
     def height(s, i):
         qs, _, _ = rk4(contact, q, v, tau, s, stance)
         return contact.positions(qs)[idx[i], 2]
 
-    times = {i: brentq(height, 0.0, h, args=(i,), xtol=1e-12) for i in crossing}
+    times = {i: 0.0 if i in now else brentq(height, 0.0, h, args=(i,), xtol=1e-12)
+             for i in crossing}
     first = min(times.values())
     landed = tuple(air[i] for i in crossing if times[i] - first < 1e-9)
     qs, vs, _ = rk4(contact, q, v, tau, first, stance)
@@ -82,7 +95,18 @@ def touchdown(contact: LeggedContact, chk: ContactChecks, st: LeggedStats, q, v,
     for foot in landed:
         if vel[names.index(foot), 2] >= 0.0:
             raise NotWalking(f"the foot {foot} reaches the ground moving up", "touchdown")
-    held = tuple(f for f in names if f in stance or f in landed)
-    imp = contact.impact(qs, vs, held)
-    check_impact(chk, st, held, imp.impulses, energy_lost=imp.energy_lost)
-    return qs, imp.v, forces, landed, first
+    ground = tuple(f for f in names if f in stance or f in landed)
+    delta = window
+    imp = unilateral_impact(contact, qs, vs, ground, chk.friction, tau=tau(qs, first),
+                            window=delta)
+    for foot in imp.sliding:
+        raise NotWalking(f"the foot {foot} slides at the touchdown (its impulse on the friction "
+                         f"cone's edge, walking.friction = {chk.friction})", "impulse")
+    index = [ground.index(f) for f in imp.held]
+    check_impact(chk, st, imp.held, imp.impulses[index], imp.leaving,
+                 imp.normal_velocity[[ground.index(f) for f in imp.leaving]],
+                 energy_lost=imp.energy_lost)
+    st.impacts_released += len([f for f in imp.leaving if f in stance])
+    if delta > 0.0:
+        qs = pin.integrate(contact.model, qs, delta * imp.v)
+    return qs, imp.v, forces, landed, first + max(delta, 0.0), imp.held

@@ -70,7 +70,9 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
           v0: np.ndarray | None = None, duration: float = 2.0, rate_hz: float = 1000.0,
           substeps: int = 1, checks: ContactChecks | None = None, push: Push | None = None,
           plant: pin.Model | None = None,
-          schedule: Callable[[float], tuple[str, ...]] | None = None) -> StandLog:
+          schedule: Callable[[float], tuple[str, ...]] | None = None,
+          on_touchdown: Callable[[float, tuple[str, ...]], None] | None = None,
+          impact_window: float = 0.0) -> StandLog:
     """Roll the robot out on its feet for ``duration`` [s].
 
     Args:
@@ -88,6 +90,12 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
             names that is in the air joins the stance at its touchdown
             (:func:`~feltool.walking.legged.events.touchdown`), recorded in
             :attr:`StandLog.touchdowns`.
+        on_touchdown: Called with ``(time [s], landed feet)`` at each touchdown; the schedule
+            is asked again at once, the stance feet it no longer names are released there (an
+            event-driven gait's switch), and the controller is called again for the new stance
+            (the contact event triggers a control update; its torques hold until the next one).
+        impact_window: Resolve each touchdown's impact over a Moreau-Jean step of this length
+            [s] (the stance feet's loads act in it), 0 for the instantaneous impact.
     """
     chk = ContactChecks(effort=legged.effort) if checks is None else checks
     contact = LeggedContact(legged, plant)
@@ -112,6 +120,7 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
         Jb = pin.getJointJacobian(contact.model, contact.data, 1, pin.LOCAL_WORLD_ALIGNED)
         return Jb.T @ np.r_[push.force, push.torque]
 
+    carry = 0.0  # an impact's window reaching past its sub-step, taken from the next one
     try:
         for i in range(n):
             t = i * dt
@@ -125,19 +134,22 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
             if released:
                 check_release(contact, q, v, tau + external(q, t), stance, released)
             start = (q, v)
+            recorded = False
             for s in range(substeps):
-                done = 0.0
+                done, carry = carry, 0.0
                 while h - done > 1e-12:
                     ts = t + s * h + done
 
                     def forcing(qq, offset, ts=ts, tau=tau):
                         return tau + external(qq, ts + offset)
 
-                    q, v, f1, landed, used = touchdown(contact, chk, st, q, v, forcing,
-                                                       h - done, stance, wanted)
+                    q, v, f1, landed, used, after = touchdown(contact, chk, st, q, v, forcing,
+                                                              h - done, stance, wanted,
+                                                              impact_window)
                     if stance:
                         check_stance(chk, st, stance, f1)
-                    if s == 0 and done == 0.0:
+                    if not recorded:
+                        recorded = True
                         full = np.full((len(names), 3), np.nan)
                         for f, fv in zip(stance, f1):
                             full[names.index(f)] = fv
@@ -145,17 +157,30 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                                          ("forces", full)):
                             rec[key].append(np.copy(val))
                     if landed:
-                        stance = tuple(f for f in names if f in stance or f in landed)
+                        stance = tuple(f for f in names if f in after)
                         pos = contact.positions(q)
-                        for f in landed:
+                        for f in (f for f in landed if f in stance):
                             anchor[f] = pos[names.index(f)]
                         touchdowns.append((ts + used, landed))
+                        if on_touchdown is not None and schedule is not None:
+                            on_touchdown(ts + used, landed)
+                            wanted = tuple(f for f in names if f in schedule(ts + used))
+                            gone = tuple(f for f in stance if f not in wanted)
+                            stance = tuple(f for f in stance if f in wanted)
+                            # the contact event triggers a control update for the new stance
+                            u = check_torques(chk, st, controller(q, v, stance, ts + used).u,
+                                              legged.motors)
+                            tau = B @ u
+                            if gone:
+                                check_release(contact, q, v, tau + external(q, ts + used),
+                                              stance, gone)
                     done = done + used if landed else h
                     q, v = contact.hold(q, v, stance, np.array([anchor[f] for f in stance]))
                     air = tuple(f for f in names if f not in stance)
                     if air:
                         check_air(chk, st, air,
                                   contact.positions(q)[[names.index(f) for f in air], 2])
+                carry = max(0.0, done - h)
             if not np.all(np.isfinite(q)) or not np.all(np.isfinite(v)):
                 raise NotWalking(f"the state is not finite at t = {t:.4g} s", "diverged")
     except NotWalking as exc:
