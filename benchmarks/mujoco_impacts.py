@@ -41,28 +41,19 @@ def touchdowns(config: Path, stiffness=None, rigid: bool = False) -> dict:
     if stiffness is not None:
         soften(exp, stiffness[0])
     trailing: list[list[float]] = []  # per touchdown: [impulse z, lift-off time]
+
+    def watch(step) -> None:  # MujocoLoop's per-step observer (feltool.walking.mujoco_walk)
+        if step.touchdown:  # the old stance foot now trails
+            trailing.append([0.0, np.nan])
+        elif trailing and np.isnan(trailing[-1][1]):
+            trailing[-1][0] += float(step.swing_force[2]) * step.h
+            if step.trailing_lifted:
+                trailing[-1][1] = step.since_touchdown
+
     if not rigid:
-        cls = type(exp.hybrid)
-        original = cls._substep
-
-        def substep(self, contact, q, v, tau, h, steps, Force, k, *args, **kwargs):
-            out = original(self, contact, q, v, tau, h, steps, Force, k, *args, **kwargs)
-            if out[2] is not None:  # a touchdown: the old stance foot now trails
-                trailing.append([0.0, np.nan])
-            elif trailing and np.isnan(trailing[-1][1]):
-                F, _ = self.sim.foot_contacts()[self._physical(self.walker.swing)]
-                trailing[-1][0] += float(F[2]) * h
-                if self._lifted:
-                    trailing[-1][1] = self._since_td
-            return out
-
-        cls._substep = substep
+        exp.hybrid.observers.append(watch)
     logs: list = []
-    try:
-        run_seed(exp, 0, 3, on_cycle=lambda cycle, log, Qd, fb: logs.append(log))
-    finally:
-        if not rigid:
-            cls._substep = original
+    run_seed(exp, 0, 3, on_cycle=lambda cycle, log, Qd, fb: logs.append(log))
     last = logs[-1]
     steps = last.steps[:len(last.impacts)]
     n = len(steps)

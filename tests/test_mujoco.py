@@ -149,6 +149,46 @@ def test_mujoco_walker_learns_on_two_seeds(config, cycles, bound):
         assert len(fb) == cycles and fb[-1] < bound * fb[0], (seed, fb)
 
 
+def test_mujoco_walker_observer_sees_every_step_as_newton_says():
+    """MujocoLoop.observers, one cycle of the shipped five-link MuJoCo walker: one call per
+    MuJoCo step (4 per control step; a touchdown ends its control step early), as many touchdowns
+    as the cycle's impacts, the trailing foot lifted within 50 ms of each; between two
+    steps the ground's force on both feet equals m (a_com - g), a_com from Pinocchio at the
+    previous step's state with the acceleration (v1 - v0) / h (MuJoCo's semi-implicit Euler
+    step), to 1e-9 m g (the labels, the feet and the forces the observer gets agree with
+    Newton's law, an independent reference; measured 4e-14 m g)."""
+    exp = load_experiment(FIVE)
+    loop = exp.hybrid
+    seen = []
+    loop.observers.append(seen.append)
+    logs = []
+    run_seed(exp, 0, 1, on_cycle=lambda cycle, log, Qd, fb: logs.append(log))
+    log = logs[0]
+    assert log.fall is None and len(log.impacts) == 2
+    n_ctrl = len(log.u_fb)
+    assert 4 * (n_ctrl - 2) < len(seen) <= 4 * n_ctrl  # two touchdowns end control steps early
+    assert sum(s.touchdown for s in seen) == len(log.impacts)
+    model = loop.walker.walker.model
+    data = model.createData()
+    mass = pin.computeTotalMass(model)
+    g = model.gravity.linear[[0, 2]]
+    worst = 0.0
+    for s0, s1 in zip(seen, seen[1:]):
+        if s1.touchdown:  # the labels swap inside this step
+            continue
+        if 0.0 < s1.since_touchdown <= 0.05:
+            assert s1.trailing_lifted or s1.since_touchdown < 0.05
+        pin.centerOfMass(model, data, s0.q, s0.v, (s1.v - s0.v) / s1.h)
+        F = (s1.stance_force + s1.swing_force)[[0, 2]]
+        worst = max(worst, float(np.abs(F - mass * (data.acom[0][[0, 2]] - g)).max()))
+        assert abs(s1.stance_point[0]) < 2e-3  # the stance foot where it touched down
+        if s1.since_touchdown > 0.05:  # the swing foot in the air, the stance foot loaded
+            assert not s1.swing_force.any() and s1.swing_depth == 0.0
+            assert s1.stance_force[2] > 0.2 * mass * 9.81 and s1.stance_point[2] <= 0.0
+    assert worst < 1e-9 * mass * 9.81, worst
+    assert all(s.trailing_lifted for s in seen if 0.05 < s.since_touchdown < np.inf)
+
+
 def test_backend_compiled_with_mujoco_is_one_line():
     with pytest.raises(ConfigError) as info:
         load_experiment(FIVE, ["backend=compiled"])
