@@ -98,19 +98,28 @@ class MujocoLoop(PhysicalLoop):
         loop: The rigid walker's loop of the same config (controller, walker, rates).
         sim: The walker's URDF compiled by MuJoCo with base, floor and feet, stepping by
             ``loop.dt / loop.substeps``.
+        impact_sample: ``end``: after a touchdown MuJoCo steps on under the held torque until
+            the landing foot has stopped (its vertical velocity >= 0, at most
+            :data:`IMPACT_WINDOW`), and the controller's next sample is that post-impact
+            state, as the rigid walker's instantaneous impact gives it; ``touchdown``: the
+            next sample is at the foot's arrival, in the middle of the soft impact.
 
     Attributes:
         observers: callables ``f(step: MujocoStep) -> None`` called after every MuJoCo step
             that passed the contact checks (none by default; append to watch a run).
     """
 
-    def __init__(self, loop: PhysicalLoop, sim: MujocoPlant):
+    def __init__(self, loop: PhysicalLoop, sim: MujocoPlant, impact_sample: str = "end"):
         super().__init__(loop.known, loop.law, loop.walker, loop.dt, loop.substeps,
                          loop.error_rows)
         self.reference = loop.reference
         self.sim = sim
         self._R = loop.walker.walker.relabel_matrices()[1]
+        self._R_inv_T = np.linalg.inv(self._R).T  # generalized forces: tau' = R^-T tau
         self._last: tuple[np.ndarray, np.ndarray] | None = None
+        if impact_sample not in ("end", "touchdown"):
+            raise ValueError(f"impact_sample must be 'end' or 'touchdown', not {impact_sample!r}")
+        self.impact_sample = impact_sample
         self.observers: list[Callable[[MujocoStep], None]] = []
         self._forces: dict = {}
         self.reset(np.zeros(sim.nq), np.zeros(len(sim.v_pin)))
@@ -165,7 +174,20 @@ class MujocoLoop(PhysicalLoop):
         out = self._mujoco_step(contact, q, v, tau, h, steps, Force, k)
         if self.observers:
             self._notify(out, tau, h)
-        return out
+        if out[2] is None or self.impact_sample == "touchdown":
+            return out
+        # impact_sample "end": MuJoCo runs on through the soft impact under the held torque
+        # (now in the new labels) until the landing foot has stopped; the time it takes is
+        # counted in the touchdown's sub-step (the next control step starts after it)
+        tau = self._R_inv_T @ tau if self._flip else self._R.T @ tau
+        q1, v1, s = out
+        while s < IMPACT_WINDOW - 1e-12 and \
+                contact.foot_state(q1, v1, self.walker.stance)[1][1] < 0.0:
+            q1, v1, _ = self._mujoco_step(contact, q1, v1, tau, h, steps, Force, k)
+            s += h
+            if self.observers:
+                self._notify((q1, v1, None), tau, h)
+        return q1, v1, s
 
     def _notify(self, out: tuple, tau: np.ndarray, h: float) -> None:
         """Hand the step just taken to every observer (:class:`MujocoStep`)."""
