@@ -28,7 +28,7 @@ from walk_mujoco import CONFIGS, overrides  # noqa: E402
 
 #: (label, --set overrides); the shipped settings are the config's own
 SETTINGS = [
-    ("rigid (Pinocchio)", ["plant.simulator=pinocchio", "backend=pinocchio"]),
+    ("rigid (Pinocchio)", ["plant={simulator: pinocchio}", "backend=pinocchio"]),
     ("Euler, 0.5 ms, 2 ms, sample at touchdown",
      ["sim.substeps=4", "plant.mujoco_integrator=euler", "plant.contact_timeconst=0.002",
       "plant.impact_sample=touchdown"]),

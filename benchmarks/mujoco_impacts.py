@@ -3,8 +3,8 @@
 
 For each shipped MuJoCo walker config, the designed start with nothing learned (as
 ``benchmarks/walk_mujoco.py``'s ``fixed`` start), seed 0, 3 cycles: the last cycle's touchdowns in
-MuJoCo (its shipped contact and a stiff one, ``solref`` time constant 0.5 ms at a 0.25 ms
-timestep) and in Pinocchio's rigid world (``plant.simulator=pinocchio``, the same design). Per
+MuJoCo (the config's settings, and a stiff contact: ``solref`` time constant 0.5 ms at a
+0.25 ms timestep, the config's integrator) and in Pinocchio's rigid world (``plant.simulator=pinocchio``, the same design). Per
 touchdown: the landing foot's impulse (MuJoCo's over the 10 ms impact window), the kinetic
 energy lost, the velocity at the first control step after the touchdown against the rigid
 impact's, and the trailing foot's impulse and lift-off time in MuJoCo (the rigid trailing foot
@@ -34,7 +34,7 @@ def touchdowns(config: Path, stiffness=None, rigid: bool = False) -> dict:
     velocities, and (MuJoCo) the trailing foot's impulse [N s] and lift-off time [s]."""
     over = overrides(config, "fixed")
     if rigid:
-        over += ["plant.simulator=pinocchio", "backend=pinocchio"]
+        over += ["plant={simulator: pinocchio}", "backend=pinocchio"]
     if stiffness is not None:
         over.append(f"sim.substeps={stiffness[1]}")
     exp = load_experiment(config, over)
@@ -73,8 +73,8 @@ def main() -> None:
         print(f"| {name} | rigid (Pinocchio) | {rigid['impulse'][0]:.2f}, {rigid['impulse'][1]:.2f}"
               f" | {rigid['energy_lost']:.3g} | 0 ({np.mean([np.linalg.norm(v) for v in rigid['post']]):.3g})"
               " | 0, 0 |")
-        for label, stiffness in (("MuJoCo, shipped (2 ms, 0.5 ms step)", None),
-                                 ("MuJoCo, stiff (0.5 ms, 0.25 ms step)", STIFF)):
+        for label, stiffness in (("MuJoCo, shipped config", None),
+                                 ("MuJoCo, stiff (0.5 ms time constant, 0.25 ms step)", STIFF)):
             m = touchdowns(config, stiffness)
             dv = np.mean([np.linalg.norm(a - b) for a, b in zip(m["post"], rigid["post"])])
             tr = m["trailing"]
