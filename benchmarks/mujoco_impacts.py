@@ -6,7 +6,8 @@ For each shipped MuJoCo walker config, the designed start with nothing learned (
 MuJoCo (the config's settings, and a stiff contact: ``solref`` time constant 0.5 ms at a
 0.25 ms timestep, the config's integrator) and in Pinocchio's rigid world
 (``plant={simulator: pinocchio}``, the same design). Per touchdown: the landing foot's
-impulse (MuJoCo's over the 10 ms impact window), the kinetic energy lost, the velocity at the first control step after the touchdown against the rigid
+impulse (MuJoCo's over the 10 ms impact window), the kinetic energy lost, the velocity at
+the first control step after the touchdown against the rigid
 impact's, and the trailing foot's impulse and lift-off time in MuJoCo (the rigid trailing foot
 carries none and leaves at once).
 
