@@ -110,6 +110,18 @@ class PlantConfig(Strict):
         "the plant: `pinocchio` (the rigid model, changed by this block) or `mujoco` (the same "
         "URDF compiled by MuJoCo with its soft contacts, the `mujoco` package: pip install "
         "'feltool[mujoco]'; the Python engine; docs/biped.md, \"MuJoCo as the plant\").")
+    mujoco_integrator: Literal["euler", "rk4"] = Field("euler", description="simulator: mujoco: "
+        "MuJoCo's integrator, `euler` (semi-implicit Euler, as feltool's own plant) or `rk4` "
+        "(MuJoCo's fourth-order Runge-Kutta: its contacts are evaluated inside the step).")
+    contact_timeconst: PositiveFloat | None = Field(None, le=1.0, description="simulator: "
+        "mujoco: the floor's and feet's `solref` time constant in [s] (stiffer when smaller; "
+        "at least two MuJoCo timesteps, 1 / (sim.rate_hz sim.substeps)); default max(2 ms, "
+        "two timesteps).")
+    impact_sample: Literal["end", "touchdown"] = Field("end", description="simulator: mujoco, "
+        "physical walkers: when the controller takes its first sample after a touchdown: "
+        "`end` (MuJoCo's soft impact has stopped the landing foot, at most 10 ms; the last "
+        "torque held meanwhile: the post-impact state, as the rigid walker's instantaneous "
+        "impact gives it) or `touchdown` (at the foot's arrival, mid-impact).")
 
     @model_validator(mode="after")
     def _mujoco_alone(self) -> PlantConfig:
@@ -119,4 +131,10 @@ class PlantConfig(Strict):
             if given:
                 raise ValueError(f"simulator: mujoco simulates the model's URDF as it is; "
                                  f"remove {', '.join(given)}")
+        else:
+            given = [k for k, default in (("mujoco_integrator", "euler"),
+                                          ("contact_timeconst", None), ("impact_sample", "end"))
+                     if getattr(self, k) != default]
+            if given:
+                raise ValueError(f"{', '.join(given)}: MuJoCo's settings, for simulator: mujoco")
         return self

@@ -48,6 +48,10 @@ def mujoco_problems(cfg: ExperimentConfig) -> list[tuple[str, str]]:
                                         "contacts at every perturbed state): set it false"))
     if cfg.actuation is not None:
         out.append(("actuation", "not supported with plant.simulator: mujoco"))
+    tc, h = cfg.plant.contact_timeconst, cfg.dt / cfg.sim.substeps
+    if tc is not None and tc < 2.0 * h * (1 - 1e-9):
+        out.append(("plant.contact_timeconst", f"{tc:g} s is below two MuJoCo timesteps "
+                    f"(2 x {h:g} s; MuJoCo needs at least two): raise sim.substeps or it"))
     return out
 
 
@@ -55,7 +59,8 @@ def mujoco_arm_loop(cfg: ExperimentConfig, robot: Robot, loop: ClosedLoop,
                     src: str | None) -> MujocoArmLoop:
     """``loop`` with MuJoCo stepping ``robot``'s URDF."""
     try:
-        sim = compile_mujoco(robot, cfg.dt / cfg.sim.substeps)
+        sim = compile_mujoco(robot, cfg.dt / cfg.sim.substeps,
+                             integrator=cfg.plant.mujoco_integrator)
     except RobotError as exc:
         raise ConfigError([("plant.simulator", str(exc))], src) from None
     return MujocoArmLoop(loop, sim)
@@ -67,7 +72,8 @@ def mujoco_walker_loop(cfg: ExperimentConfig, loop: PhysicalLoop, src: str | Non
     base = list(wm.base) if cfg.walking.base == "planar" else None
     try:
         sim = compile_mujoco(wm.robot, cfg.dt / cfg.sim.substeps, base, dict(wm.feet),
-                             cfg.walking.friction, loop.known.model.gravity.linear)
+                             cfg.walking.friction, loop.known.model.gravity.linear,
+                             cfg.plant.mujoco_integrator, cfg.plant.contact_timeconst)
     except RobotError as exc:
         raise ConfigError([("plant.simulator", str(exc))], src) from None
-    return MujocoLoop(loop, sim)
+    return MujocoLoop(loop, sim, cfg.plant.impact_sample)

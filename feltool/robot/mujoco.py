@@ -113,17 +113,24 @@ class MujocoPlant:
         return a
 
     def step(self, tau: np.ndarray, n: int = 1) -> None:
-        """``n`` MuJoCo steps under the generalized forces ``tau`` (Pinocchio's order) [N m]."""
+        """``n`` MuJoCo steps under the generalized forces ``tau`` (Pinocchio's order) [N m].
+
+        Afterwards the positions (:meth:`foot_point`) are the new state's: ``mj_step``
+        computes kinematics and contacts at the state it starts from and then integrates, so
+        it leaves ``geom_xpos`` one step behind ``qpos``; they are recomputed here
+        (``mj_kinematics``). The contacts (:meth:`foot_contacts`) stay the last step's: the
+        forces that acted over it, at the state it started from."""
         d = self.data
         d.qfrc_applied[:] = 0.0
         d.qfrc_applied[self.v_mj] = tau[self.v_pin]
         for _ in range(n):
             self._mj.mj_step(self.model, d)
+        self._mj.mj_kinematics(self.model, d)
 
     def foot_contacts(self) -> dict[str, tuple[np.ndarray, float]]:
         """Per foot: the ground's force on it in the world ``(F_x, F_y, F_z)`` [N] (MuJoCo's
         ``mj_contactForce``, summed over the foot's contacts) and its penetration depth [m]
-        (0: no contact)."""
+        (0: no contact), over the last step (at the state it started from; :meth:`step`)."""
         m, d, f6 = self.model, self.data, self._f6
         out = {name: (np.zeros(3), 0.0) for name in self.feet}
         by_geom = {g: name for name, g in self.feet.items()}
@@ -142,7 +149,8 @@ class MujocoPlant:
         return out
 
     def foot_point(self, foot: str) -> np.ndarray:
-        """The foot point's world position ``(x, y, z)`` [m] (its sphere's centre)."""
+        """The foot point's world position ``(x, y, z)`` [m] (its sphere's centre) at the
+        current state."""
         return self.data.geom_xpos[self.feet[foot]].copy()
 
     def set_collides(self, foot: str, on: bool) -> None:
@@ -152,7 +160,8 @@ class MujocoPlant:
 
 def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
                    feet: dict[str, int] | None = None, friction: float = 1.0,
-                   gravity: np.ndarray | None = None) -> MujocoPlant:
+                   gravity: np.ndarray | None = None, integrator: str = "euler",
+                   timeconst: float | None = None) -> MujocoPlant:
     """The URDF of ``robot`` compiled by MuJoCo (module doc), stepping by ``timestep`` [s].
 
     Args:
@@ -164,6 +173,10 @@ def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
         feet: foot name -> Pinocchio frame id of its contact point (adds floor and spheres).
         friction: the feet's friction coefficient against the floor [-].
         gravity: the world's gravity ``(3,)`` in [m/s^2] (default the robot model's).
+        integrator: ``euler`` (semi-implicit, ``eulerdamp`` off) or ``rk4`` (MuJoCo's
+            Runge-Kutta: the contacts are evaluated at its four stages).
+        timeconst: the contacts' ``solref`` time constant [s] (default :data:`TIMECONST`,
+            raised to two timesteps).
 
     Raises:
         RobotError: when MuJoCo cannot compile the URDF or its joints do not match.
@@ -181,7 +194,8 @@ def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
     c.boundmass, c.boundinertia = 0.0, MIN_INERTIA
     o = spec.option
     o.timestep = timestep
-    o.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    o.integrator = (mujoco.mjtIntegrator.mjINT_RK4 if integrator == "rk4"
+                    else mujoco.mjtIntegrator.mjINT_EULER)
     o.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
     o.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     o.gravity = np.array(robot.model.gravity.linear if gravity is None else gravity, float)
@@ -198,7 +212,8 @@ def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
             root.add_joint(name=name, type=kind, axis=axis)
     geoms = {}
     if feet:
-        solref = [max(TIMECONST, 2.0 * timestep), DAMPRATIO]
+        solref = [max(TIMECONST, 2.0 * timestep) if timeconst is None else timeconst,
+                  DAMPRATIO]
         common = dict(friction=[friction, 0.005, 0.0001], solref=solref, solimp=list(SOLIMP),
                       condim=3)
         spec.worldbody.add_geom(name="feltool_floor", type=mujoco.mjtGeom.mjGEOM_PLANE,

@@ -30,9 +30,17 @@ walker computes from its constraint is read from MuJoCo's contacts (``mj_contact
   kinetic energy's drop, over the impact's first :data:`IMPACT_WINDOW`.
 
 Each violation ends the cycle as "not walking", with the reason and its kind.
+
+**Observers**: :attr:`MujocoLoop.observers` are called after every MuJoCo step that passed the
+checks with a :class:`MujocoStep` (the state, the torques, each foot's force, depth and
+position, the touchdown): what a benchmark or test needs to watch inside a control step (e.g.
+the trailing foot's force after a touchdown) without reaching into the loop's internals.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -48,6 +56,41 @@ IMPACT_WINDOW = 0.01          #: the touchdown's soft impact lasts this [s]
 NORMAL_FORCE_WINDOW = 0.005   #: the normal force checked is its mean over this [s]
 
 
+@dataclass(frozen=True)
+class MujocoStep:
+    """One MuJoCo step of :class:`MujocoLoop`, as its observers see it. Feet are named by
+    their labels after the step (at a touchdown the landing foot is already ``stance``), and
+    positions are relative to the stance foot's touchdown point.
+
+    Attributes:
+        h: the step [s].
+        q, v: the controller's state after the step (its labels) [m, rad; m/s, rad/s].
+        tau: the generalized forces the controller commanded over the step, in its labels at
+            the step's start [N, N m].
+        stance_force, swing_force: the ground's force on each foot ``(F_x, F_y, F_z)`` [N].
+        stance_depth, swing_depth: each foot's penetration into the floor [m] (0: no contact).
+        stance_point, swing_point: each foot point ``(x, y, z)`` [m], x from the stance
+            foot's touchdown point.
+        touchdown: the swing foot touched down in this step (the labels are swapped).
+        since_touchdown: time since the last touchdown [s] (inf before the first).
+        trailing_lifted: the trailing foot has left the floor since the last touchdown.
+    """
+
+    h: float
+    q: np.ndarray
+    v: np.ndarray
+    tau: np.ndarray
+    stance_force: np.ndarray
+    swing_force: np.ndarray
+    stance_depth: float
+    swing_depth: float
+    stance_point: np.ndarray
+    swing_point: np.ndarray
+    touchdown: bool
+    since_touchdown: float
+    trailing_lifted: bool
+
+
 class MujocoLoop(PhysicalLoop):
     """The physical walker's closed loop with MuJoCo as the plant (module doc).
 
@@ -55,15 +98,30 @@ class MujocoLoop(PhysicalLoop):
         loop: The rigid walker's loop of the same config (controller, walker, rates).
         sim: The walker's URDF compiled by MuJoCo with base, floor and feet, stepping by
             ``loop.dt / loop.substeps``.
+        impact_sample: ``end``: after a touchdown MuJoCo steps on under the held torque until
+            the landing foot has stopped (its vertical velocity >= 0, at most
+            :data:`IMPACT_WINDOW`), and the controller's next sample is that post-impact
+            state, as the rigid walker's instantaneous impact gives it; ``touchdown``: the
+            next sample is at the foot's arrival, in the middle of the soft impact.
+
+    Attributes:
+        observers: callables ``f(step: MujocoStep) -> None`` called after every MuJoCo step
+            that passed the contact checks (none by default; append to watch a run).
     """
 
-    def __init__(self, loop: PhysicalLoop, sim: MujocoPlant):
+    def __init__(self, loop: PhysicalLoop, sim: MujocoPlant, impact_sample: str = "end"):
         super().__init__(loop.known, loop.law, loop.walker, loop.dt, loop.substeps,
                          loop.error_rows)
         self.reference = loop.reference
         self.sim = sim
         self._R = loop.walker.walker.relabel_matrices()[1]
+        self._R_inv_T = np.linalg.inv(self._R).T  # generalized forces: tau' = R^-T tau
         self._last: tuple[np.ndarray, np.ndarray] | None = None
+        if impact_sample not in ("end", "touchdown"):
+            raise ValueError(f"impact_sample must be 'end' or 'touchdown', not {impact_sample!r}")
+        self.impact_sample = impact_sample
+        self.observers: list[Callable[[MujocoStep], None]] = []
+        self._forces: dict = {}
         self.reset(np.zeros(sim.nq), np.zeros(len(sim.v_pin)))
 
     # -- the map between the controller's labels and MuJoCo's world -------------------------------
@@ -113,13 +171,46 @@ class MujocoLoop(PhysicalLoop):
     # -- one MuJoCo step with the contact events ----------------------------------------------------
     def _substep(self, contact, q, v, tau, h, steps, Force, k, finish: bool = True,
                  start=None):
+        out = self._mujoco_step(contact, q, v, tau, h, steps, Force, k)
+        if self.observers:
+            self._notify(out, tau, h)
+        if out[2] is None or self.impact_sample == "touchdown":
+            return out
+        # impact_sample "end": MuJoCo runs on through the soft impact under the held torque
+        # (now in the new labels) until the landing foot has stopped; the time it takes is
+        # counted in the touchdown's sub-step (the next control step starts after it)
+        tau = self._R_inv_T @ tau if self._flip else self._R.T @ tau
+        q1, v1, s = out
+        while s < IMPACT_WINDOW - 1e-12 and \
+                contact.foot_state(q1, v1, self.walker.stance)[1][1] < 0.0:
+            q1, v1, _ = self._mujoco_step(contact, q1, v1, tau, h, steps, Force, k)
+            s += h
+            if self.observers:
+                self._notify((q1, v1, None), tau, h)
+        return q1, v1, s
+
+    def _notify(self, out: tuple, tau: np.ndarray, h: float) -> None:
+        """Hand the step just taken to every observer (:class:`MujocoStep`)."""
+        W, touchdown = self.walker, out[2] is not None
+        phys = {label: self._physical(label) for label in (W.stance, W.swing)}
+        (F_st, d_st), (F_sw, d_sw) = (self._forces[phys[label]] for label in (W.stance, W.swing))
+        shift = np.array([self._x0, 0.0, 0.0])
+        step = MujocoStep(h, out[0].copy(), out[1].copy(), np.array(tau, float), F_st.copy(),
+                          F_sw.copy(), float(d_st), float(d_sw),
+                          self.sim.foot_point(phys[W.stance]) - shift,
+                          self.sim.foot_point(phys[W.swing]) - shift, touchdown,
+                          float(self._since_td), bool(self._lifted))
+        for observer in self.observers:
+            observer(step)
+
+    def _mujoco_step(self, contact, q, v, tau, h, steps, Force, k):
         W, chk, sim, st = self.walker, self.walker.checks, self.sim, steps[-1]
         ke0 = contact.kinetic_energy(q, v)
         gap0 = self._gap(W.swing)
         sim.step(self._R.T @ tau if self._flip else tau)
         q1, v1 = self._observe()
         stance, swing = self._physical(W.stance), self._physical(W.swing)
-        forces = sim.foot_contacts()
+        forces = self._forces = sim.foot_contacts()
         (F_st, d_st), (F_sw, d_sw) = forces[stance], forces[swing]
         Force[k] = F_st[[0, 2]]
         self._since_td += h
