@@ -115,12 +115,12 @@ class WalkerModelLearner:
         return theta_m[:self.n_pi], b
 
     def slope(self, theta_m: np.ndarray) -> float:
-        """The identified ground slope :math:`\alpha_0 + \delta\alpha` [rad] (downhill
+        r"""The identified ground slope :math:`\alpha_0 + \delta\alpha` [rad] (downhill
         along +x; the known one without ``learning.model.slope``)."""
         return self.slope0 + (float(theta_m[self.n_pi]) if self.n_tilt else 0.0)
 
     def tilt_column(self, qd: np.ndarray) -> np.ndarray:
-        """:math:`g_t(q)` ``(nv,)`` [N m / rad]: the generalized-force change per radian of
+        r""":math:`g_t(q)` ``(nv,)`` [N m / rad]: the generalized-force change per radian of
         ground slope, RNEA(q, 0, 0) by Pinocchio with gravity along the ground's tangent."""
         return pin.computeGeneralizedGravity(self.tilt_model, self.tilt_data, qd).copy()
 
@@ -166,7 +166,7 @@ class WalkerModelLearner:
 
 
 def tilt_direction(g: np.ndarray) -> np.ndarray:
-    """:math:`\partial g / \partial \alpha` [m/s^2 / rad] for gravity ``g`` =
+    r""":math:`\partial g / \partial \alpha` [m/s^2 / rad] for gravity ``g`` =
     :math:`|g|(\sin\alpha, 0, -\cos\alpha)`: :math:`|g|(\cos\alpha, 0, \sin\alpha)`
     (gravity turned a quarter turn about y, along the ground's tangent)."""
     return np.array([-g[2], 0.0, g[0]])

@@ -95,7 +95,7 @@ def physical_inertia(p: np.ndarray, moving: np.ndarray | None = None,
 
 def identified_model(learner, theta_m: np.ndarray, legs: list[tuple[str, str]] = ()
                      ) -> tuple[pin.Model, int]:
-    """The known model with the learned inertial parameters :math:`\pi_{model} + \theta_\pi`,
+    r"""The known model with the learned inertial parameters :math:`\pi_{model} + \theta_\pi`,
     each body projected by :func:`physical_inertia`, and how many bodies' torques the
     projection changed. ``legs``: the walker's left/right joint pairs, whose bodies get the
     mean of the pair's parameters: the walker runs (and learns) in stance-relative labels,
@@ -159,6 +159,27 @@ def cycle_measurements(exp: Experiment, out) -> tuple[np.ndarray, ...]:
     return Q, V, np.asarray(tau, float), touchdowns
 
 
+def tied_legs(learner, legs) -> np.ndarray:
+    """``T`` ``(n_pi, r)``: the learner's inertial columns as functions of ``r`` free ones, a
+    right leg's body's parameter the same as its left twin's (``delta_pi = T x``)."""
+    cols = [int(c) for c in learner.columns]
+    where = {c: i for i, c in enumerate(cols)}
+    twin = {}
+    for a, b in legs:
+        ja, jb = learner.model.getJointId(a), learner.model.getJointId(b)
+        for k in range(10):
+            ca, cb = 10 * (ja - 1) + k, 10 * (jb - 1) + k
+            if ca in where and cb in where:
+                twin[where[cb]] = where[ca]
+    free = [i for i in range(len(cols)) if i not in twin]
+    T = np.zeros((len(cols), len(free)))
+    for r, i in enumerate(free):
+        T[i, r] = 1.0
+    for i, j in twin.items():
+        T[i, free.index(j)] = 1.0
+    return T
+
+
 def identify_motion(exp: Experiment, Q: np.ndarray, V: np.ndarray, Tau: np.ndarray,
                     touchdowns: np.ndarray, damping: float = 1e-6) -> tuple[np.ndarray, float]:
     r"""The world identified from the walker's measured motion: ``(delta_pi, delta_alpha)``,
@@ -176,7 +197,9 @@ def identify_motion(exp: Experiment, Q: np.ndarray, V: np.ndarray, Tau: np.ndarr
               = N^T igl(B u_k - \mathrm{RNEA}_{known}(q, v, a)igr),
 
     solved by damped least squares over the cycle (``damping`` relative to the mean
-    diagonal: the directions the motion does not excite stay at the known model's). The
+    diagonal: the directions the motion does not excite stay at the known model's), the two
+    legs' bodies tied alike (:func:`tied_legs`: the walker runs in stance-relative labels,
+    but its legs are one build, and a design with unlike legs does not walk). The
     feedback's motor-space error the model learner steps on (:math:`A e`) does not see the
     rotation about the foot at all, so it cannot identify what makes the design no orbit
     (docs/biped.md)."""
@@ -186,6 +209,7 @@ def identify_motion(exp: Experiment, Q: np.ndarray, V: np.ndarray, Tau: np.ndarr
     W = exp.hybrid.walker
     model, data = L.model, L.model.createData()
     dt = exp.config.dt
+    T = tied_legs(L, W.walker.legs)
     skip = set()
     for k in touchdowns:
         skip.update(range(int(k) - 2, int(k) + 3))
@@ -198,7 +222,7 @@ def identify_motion(exp: Experiment, Q: np.ndarray, V: np.ndarray, Tau: np.ndarr
         a = (V[k + 1] - V[k]) / dt
         N = sla.null_space(W.contact.jacobian(q, W.stance))
         Y = pin.computeJointTorqueRegressor(model, data, q, v, a)[:, L.columns]
-        Phi = np.column_stack([Y, L.tilt_column(q)])
+        Phi = np.column_stack([Y @ T, L.tilt_column(q)])
         rows.append(N.T @ Phi)
         rhs.append(N.T @ (Tau[k] - pin.rnea(model, data, q, v, a)))
     if not rows:
@@ -208,7 +232,7 @@ def identify_motion(exp: Experiment, Q: np.ndarray, V: np.ndarray, Tau: np.ndarr
     H = Phi.T @ Phi
     lam = damping * float(np.mean(np.diag(H))) + 1e-300
     x = np.linalg.solve(H + lam * np.eye(len(H)), Phi.T @ r)
-    return x[:-1], float(x[-1])
+    return T @ x[:-1], float(x[-1])
 
 
 def identified_urdf(robot, model: pin.Model, out: Path) -> Path:
@@ -311,7 +335,7 @@ class Redesigner:
                 d_pi, d_alpha = identify_motion(exp, *cycle_measurements(exp, out))
             except FeltoolError:
                 return None
-            model, projected = identified_model(self.learner, d_pi, self.legs)
+            model, projected = identified_model(self.learner, d_pi)
             slope = self.learner.slope0 + d_alpha
         else:
             model, projected = identified_model(self.learner, theta_m, self.legs)
