@@ -19,7 +19,12 @@ The learners: the shipped trajectory FEL (the torso's RMP) and, per ``--learner`
 of the model (``learning.model``: the regressor's inertial-parameter correction and/or a
 constant torque per motor; feltool.learning.walker_model); ``exact``: nothing learned, but
 the plant's exact inverse model in the feedforward from the change on (the floor any
-feedforward learner can reach while the feedback holds the design). Seeds 0-9 were fixed before looking;
+feedforward learner can reach while the feedback holds the design); ``redesign``:
+``model_bias`` and the gait re-designed online every 10 s walked on the world identified from
+the walker's measured motion (``learning.redesign``, feltool/runs/redesign.py), with the
+shipped gait's design options; ``redesign_exact``: the same re-design given the plant's own
+model (the oracle of the identification); ``redesign_slope``: ``redesign`` with the model
+learner's ground slope too (``learning.model.slope``). Seeds 0-9 were fixed before looking;
 150 cycles each, on the compiled engine, contact checks on. Per seed: walks every step after
 the change, the torso's largest per-cycle RMS error from its target after the change [rad],
 and the feedback ratio (summed feedback of the last cycle / of the change's cycle).
@@ -294,6 +299,12 @@ def main() -> None:
                       f"{r['fb'][CHANGE - 1]:.3g} -> {r['fb'][-1]:.3g} N m (ratio "
                       f"{r['ratio']:.3f}), {time.perf_counter() - t:.1f} s, {r['engine']}",
                       flush=True)
+                if r.get("redesign"):
+                    rd = r["redesign"]
+                    print(f"  re-designs: {rd['designed']} at cycles "
+                          f"{[d['cycle'] for d in rd['designs']]}, failed {rd['failed']}"
+                          + "".join(f"; cycle {f['cycle']}: {f['reason'][:120]}"
+                                    for f in rd["failures"]), flush=True)
     print(table(results))
     if args.figures is not None:
         figure(results, args.figures / f"walk_unknown_world_{args.learner}.png")
