@@ -19,7 +19,12 @@ The learners: the shipped trajectory FEL (the torso's RMP) and, per ``--learner`
 of the model (``learning.model``: the regressor's inertial-parameter correction and/or a
 constant torque per motor; feltool.learning.walker_model); ``exact``: nothing learned, but
 the plant's exact inverse model in the feedforward from the change on (the floor any
-feedforward learner can reach while the feedback holds the design). Seeds 0-9 were fixed before looking;
+feedforward learner can reach while the feedback holds the design); ``redesign``:
+``model_bias`` and the gait re-designed online every 10 s walked on the world identified from
+the walker's measured motion (``learning.redesign``, feltool/runs/redesign.py), with the
+shipped gait's design options; ``redesign_exact``: the same re-design given the plant's own
+model (the oracle of the identification); ``redesign_slope``: ``redesign`` with the model
+learner's ground slope too (``learning.model.slope``). Seeds 0-9 were fixed before looking;
 150 cycles each, on the compiled engine, contact checks on. Per seed: walks every step after
 the change, the torso's largest per-cycle RMS error from its target after the change [rad],
 and the feedback ratio (summed feedback of the last cycle / of the change's cycle).
@@ -56,6 +61,29 @@ LEARNERS = {
     "model_bias": ["learning.model={features: regressor, update: gauss_newton, rate: 0.5, "
                    "motor_bias: 0.5, damping: 1.0e-3}"],
 }
+#: ``--learner redesign`` / ``redesign_slope``: ``model_bias`` (and a learned ground slope),
+#: and the gait re-designed online on the identified model (``learning.redesign``) with the
+#: shipped gait's design options (the first line of its config)
+REDESIGN = {
+    "three_link_walker": "step_length_m: 0.5, duration_s: 0.6, torso_rad: 0.1, "
+                         "friction_margin: 0.6, normal_force_margin: 0.5",
+    "five_link_walker": "speed_m_s: 0.8, duration_s: 0.5, torso_rad: 0.1",
+    "compass_gait": "step_length_m: 0.4, duration_s: 0.6",
+}
+REDESIGN_EVERY_S = 10.0  # [s] walked between re-designs
+LEARNERS["redesign"] = LEARNERS["model_bias"]
+LEARNERS["redesign_exact"] = LEARNERS["model_bias"]  # the re-design given the plant's model
+LEARNERS["redesign_slope"] = [
+    "learning.model={features: regressor, update: gauss_newton, rate: 0.5, motor_bias: 0.5, "
+    "slope: 0.5, damping: 1.0e-3}"]
+
+
+def learner_overrides(walker: str, learner: str) -> list[str]:
+    """The overrides of ``learner`` on ``walker``."""
+    over = list(LEARNERS[learner])
+    if learner.startswith("redesign"):
+        over.append(f"learning.redesign={{every_s: {REDESIGN_EVERY_S}, {REDESIGN[walker]}}}")
+    return over
 
 
 def world_event(world: str, exp) -> dict:
@@ -87,7 +115,8 @@ def overrides(walker: str, world: str, learner: str, config: Path | None = None,
     learned = probe.learned_joints
     ev = json.dumps(world_event(world, probe))
     return (extra + ["walking.poincare=false", "backend=compiled", f"events=[{ev}]"]
-            + [f"joints.{j}.learn.init=demo" for j in learned] + LEARNERS[learner])
+            + [f"joints.{j}.learn.init=demo" for j in learned]
+            + learner_overrides(walker, learner))
 
 
 def exact_correction(exp, world: str):
@@ -127,7 +156,19 @@ def run_case(walker: str, world: str, learner: str, seed: int, cycles: int,
             if cycle == CHANGE - 1:
                 exp.hybrid.model_correction = oracle
 
-    res = run_seed(exp, seed, cycles=cycles, progress=progress)
+    oracle = None
+    if learner == "redesign_exact":  # the re-design on the plant's own model (from the change)
+        from feltool.config.events import EventConfig
+        from feltool.plant.events import changed_model
+
+        known = exp.model_learner.model
+        ev = world_event(world, exp)
+        plant = changed_model(known, [EventConfig(**ev)])
+        if ev["kind"] == "slope":  # the designer takes the slope apart; the model stays level
+            plant = known
+        slope = exp.model_learner.slope0 + (ev["angle"] if ev["kind"] == "slope" else 0.0)
+        oracle = lambda theta_m: (plant, slope)  # noqa: E731
+    res = run_seed(exp, seed, cycles=cycles, progress=progress, redesign_world=oracle)
     fb = [r["fb_abs_mean_error"] for r in res.rows]
     torso = [r.get("stabilized_rms", np.nan) for r in res.rows[CHANGE - 1:]]
     walk = res.summary.get("walking", {})
@@ -146,7 +187,7 @@ def run_case(walker: str, world: str, learner: str, seed: int, cycles: int,
             "cycles": len(res.rows), "fb": fb,
             "torso_rms_max": float(np.nanmax(torso)) if torso else float("nan"),
             "ratio": fb[-1] / fb[CHANGE - 1] if len(fb) >= CHANGE else float("nan"),
-            "engine": exp.engine}
+            "engine": exp.engine, "redesign": res.summary.get("redesign")}
 
 
 def impact_share(walker: str, world: str, cycles: int = 10, window_s: float = 0.05) -> dict:
@@ -258,6 +299,12 @@ def main() -> None:
                       f"{r['fb'][CHANGE - 1]:.3g} -> {r['fb'][-1]:.3g} N m (ratio "
                       f"{r['ratio']:.3f}), {time.perf_counter() - t:.1f} s, {r['engine']}",
                       flush=True)
+                if r.get("redesign"):
+                    rd = r["redesign"]
+                    print(f"  re-designs: {rd['designed']} at cycles "
+                          f"{[d['cycle'] for d in rd['designs']]}, failed {rd['failed']}"
+                          + "".join(f"; cycle {f['cycle']}: {f['reason'][:120]}"
+                                    for f in rd["failures"]), flush=True)
     print(table(results))
     if args.figures is not None:
         figure(results, args.figures / f"walk_unknown_world_{args.learner}.png")

@@ -8,6 +8,7 @@ from typing import Literal
 
 from pydantic import (
     Field,
+    model_validator,
 )
 
 from feltool.bounds import (
@@ -56,11 +57,66 @@ class ModelLearningConfig(Strict):
         "constant torque per motor (stance-relative labels), its step this fraction of the "
         "cycle's Levenberg-Marquardt step (alone: of the cycle's mean motor-space error) [-]; "
         "independent of rate_hz, period and basis; 0 = none (docs/biped.md).")
+    slope: NonNegFloat = Field(0.0, le=1.0, description="Physical walkers: also learn the "
+        "ground slope the known model does not know (gravity tilted about y, downhill along +x) "
+        "[rad], its step this fraction of the cycle's Levenberg-Marquardt step [-]; 0 = none "
+        "(docs/biped.md).")
     jacobian: Literal["learned", "nominal"] = Field("learned", description="Inverse model whose "
         "derivatives the trajectory learner's Jacobian uses when both learn: learned = the known "
         "model plus the current correction (chain rule through Phi theta_m; regressor features "
         "give RNEA with pi_model + theta_m; on the joints the correction drives), nominal = the "
         "known model alone.")
+
+
+class RedesignConfig(Strict):
+    """Physical walkers with ``learning.model``: online gait re-acquisition. During the run the
+    gait is re-designed (feltool/gait/design.py, IPOPT) on the known model corrected by what
+    the model learner identified (its inertial parameters, projected to physically consistent
+    ones, and its ground slope), with these design options; the run continues on the new
+    reference at the cycle's end (docs/biped.md, "Online gait re-acquisition")."""
+
+    identify: Literal["motion", "model"] = Field("motion", description="The world the gait "
+        "is re-designed in: motion = identified from the last cycle's measured motion and "
+        "applied torques in the directions the stance foot's force does not act in (the "
+        "rotation about the foot included); model = the model learner's own correction and "
+        "slope (learned from the motor-space feedback, which does not see the rotation about "
+        "the foot: docs/biped.md).")
+    every_s: PositiveFloat = Field(10.0, le=1.0e6, description="Time walked between two "
+        "re-designs (and before the first) [s]; a re-design happens at the end of the first "
+        "cycle after it.")
+    min_mass_change: NonNegFloat = Field(0.01, le=1.0, description="Re-design only when the "
+        "identified total mass differs from the current design's by more than this fraction "
+        "of the known total mass [-] ... ")
+    min_slope_change_rad: NonNegFloat = Field(0.002, le=1.0, description="... or the "
+        "identified ground slope from the design's by more than this [rad], or the identified "
+        "centre of mass (the walker standing) from the design's by more than "
+        "min_com_change_m.")
+    min_com_change_m: NonNegFloat = Field(0.002, le=1.0, description="See "
+        "min_slope_change_rad [m].")
+    speed_m_s: PositiveFloat | None = Field(None, le=100.0, description="The design's mean "
+        "speed [m/s] (give it or step_length_m, as feltool gait --speed).")
+    step_length_m: PositiveFloat | None = Field(None, le=100.0, description="The design's step "
+        "length [m] (feltool gait --step-length).")
+    duration_s: PositiveFloat | None = Field(None, le=100.0, description="The design's step "
+        "duration [s] (default period_s / walking.steps_per_cycle).")
+    torso_rad: float | None = Field(None, ge=-1.6, le=1.6, description="The torso's mean "
+        "pitch [rad] (default its stabilize target).")
+    friction_margin: PositiveFloat = Field(0.85, le=1.0, description="Design within this "
+        "times walking.friction [-] (feltool gait --friction-margin).")
+    normal_force_margin: NonNegFloat = Field(0.05, le=10.0, description="Least normal force "
+        "this times m g above walking.normal_force_min [-] (feltool gait "
+        "--normal-force-margin).")
+    knots: int = Field(40, ge=4, le=1000, description="Collocation intervals per step.")
+    verify_steps: int = Field(4, ge=2, le=1000, description="Steps the new design walks in "
+        "the identified world before its orbit is closed (feltool gait --verify-steps).")
+    max_failures: int = Field(5, ge=1, le=1000, description="Stop re-designing after this "
+        "many failed designs (each keeps the old reference; counted in the summary).")
+
+    @model_validator(mode="after")
+    def _one_length(self):
+        if (self.speed_m_s is None) == (self.step_length_m is None):
+            raise ValueError("give exactly one of speed_m_s and step_length_m")
+        return self
 
 
 class Rates(Strict):
@@ -136,6 +192,9 @@ class LearningConfig(Strict):
         "velocity jump makes a feedback spike that no smooth RMP can remove) [s]; 0 = off.")
     model: ModelLearningConfig | None = Field(None, description="Also learn an inverse-model "
         "correction by classic FEL (docs/model_learning.md); default off.")
+    redesign: RedesignConfig | None = Field(None, description="Physical walkers with "
+        "learning.model: re-design the gait online on the identified model (docs/biped.md, "
+        "\"Online gait re-acquisition\"); default off.")
     error_estimate: Literal["feedback", "inverse_dynamics"] = Field("feedback", description=
         "Physical walkers: the feedforward's error is estimated by the feedback (eq. 3.6), or "
         "by the feedback plus the inertial term M (a_r - a) of the reference's acceleration "

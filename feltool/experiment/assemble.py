@@ -352,6 +352,11 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
     if uses_mujoco(cfg) and wm is None:
         loop = mujoco_arm_loop(cfg, robot, loop, src)
     check_events(robot.model, cfg.events, src)
+    if L.redesign is not None and (wm is None or L.model is None
+                                   or L.model.features != "regressor"):
+        raise ConfigError([("learning.redesign", "re-designs the gait on the identified model: "
+                            "needs a physical walker (walking.feet) and learning.model with "
+                            "features regressor")], src)
     hybrid = None
     if L.impact_window_s > 0 and cfg.walking is None:
         raise ConfigError([("learning.impact_window_s", "only for walkers (needs a walking "
@@ -455,10 +460,10 @@ def _model_learner(cfg: ExperimentConfig, robot: Robot, joints: list[str], actua
     if M is None:
         return None
     problems = []
-    if M.features == "none" or M.motor_bias > 0:
+    if M.features == "none" or M.motor_bias > 0 or M.slope > 0:
         problems.append(("learning.model.features" if M.features == "none" else
-                         "learning.model.motor_bias", "only for a physical walker "
-                                                      "(walking.feet)"))
+                         "learning.model.motor_bias" if M.motor_bias > 0 else
+                         "learning.model.slope", "only for a physical walker (walking.feet)"))
     if cfg.learning.step == "per_step":
         problems.append(("learning.model", "needs learning.step: per_cycle (the trajectory "
                                            "learner's per_step loop has no model correction)"))
@@ -512,10 +517,13 @@ def _walker_model_learner(cfg: ExperimentConfig, robot: Robot, motors: list[str]
     if M.features == "none" and M.motor_bias == 0:
         problems.append(("learning.model.motor_bias", "with features none, give motor_bias "
                                                       "> 0 (else nothing is learned)"))
+    if M.features == "none" and M.slope > 0:
+        problems.append(("learning.model.slope", "a learned ground slope needs the known "
+                                                 "model: features regressor"))
     if problems:
         raise ConfigError(problems, src)
     model = robot.model if M.features == "regressor" else None
-    return WalkerModelLearner(model, motors, M.rate, M.motor_bias, M.damping)
+    return WalkerModelLearner(model, motors, M.rate, M.motor_bias, M.damping, M.slope)
 
 
 def _demo_fitter(q, v, a, series, phi, goal):

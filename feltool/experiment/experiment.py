@@ -73,6 +73,9 @@ class Experiment:
     engine: str = "python"
     engine_reason: str = "not chosen yet (feltool.engines.select.choose_engine)"
     compiled: Any = field(default=None, repr=False, compare=False)
+    #: the raw config mapping it was built from (``--set`` applied; learning.redesign builds
+    #: the experiment of a new design from it), or None
+    raw: dict | None = field(default=None, repr=False, compare=False)
 
     @property
     def phase_varies(self) -> bool:

@@ -16,7 +16,16 @@ physical walker's command (:mod:`feltool.walking.physical`),
   body, in the stance-relative labels the walker runs in) that the feedback asks for: a
   payload or changed masses are exactly such a change;
 * :math:`b` -- a constant torque per motor (stance-relative labels) [N m]: the mean that a
-  slope or an unmodelled constant load needs.
+  slope or an unmodelled constant load needs;
+* :math:`\delta\alpha\, g_t(q_d)` (``learning.model.slope``) -- a ground slope the known
+  model does not know [rad]: gravity tilted about y by :math:`\alpha_0 + \delta\alpha`
+  (:math:`\alpha_0` the known model's slope, downhill along +x). RNEA is linear in the
+  gravity vector, so to first order in :math:`\delta\alpha` the change is
+  :math:`\delta\alpha\,\mathrm{RNEA}(q_d, 0, 0)` evaluated by Pinocchio with gravity along
+  the ground's tangent, :math:`\partial g/\partial\alpha = |g|(\cos\alpha_0, 0,
+  \sin\alpha_0)`: the column :math:`g_t`. (Second order: :math:`\delta\alpha^2/2` of the
+  normal gravity torque, 4.5e-4 of it at 0.03 rad. The column uses the known inertias: the
+  product of a mass and a slope correction is left out.)
 
 Both are learned from the feedforward's error in motor torques, :math:`e_m = A e` (the
 feedback, plus the inertial term with ``error_estimate: inverse_dynamics``), by one
@@ -58,7 +67,7 @@ class WalkerModelLearner:
     walker = True
 
     def __init__(self, model: pin.Model | None, motor_names: list[str], rate: float,
-                 bias_rate: float, damping: float = 1e-6):
+                 bias_rate: float, damping: float = 1e-6, slope_rate: float = 0.0):
         self.model = model
         self.data = model.createData() if model is not None else None
         self.pi_model = inertial_parameters(model) if model is not None else np.zeros(0)
@@ -70,14 +79,31 @@ class WalkerModelLearner:
         self.k = len(motor_names)
         self.n_bias = self.k if bias_rate > 0 else 0
         self.rate, self.bias_rate, self.damping = rate, bias_rate, damping
+        #: the learned ground slope's column (``slope_rate > 0``; it needs the model)
+        self.n_tilt = 1 if slope_rate > 0 and model is not None else 0
+        self.slope_rate = slope_rate
+        if model is not None:
+            g = np.asarray(model.gravity.linear, float).copy()
+            #: the known model's ground slope alpha_0 [rad] (downhill along +x)
+            self.slope0 = float(np.arctan2(g[0], -g[2]))
+            self.tilt_model = pin.Model(model)
+            self.tilt_model.gravity = pin.Motion(tilt_direction(g), np.zeros(3))
+            self.tilt_data = self.tilt_model.createData()
+        else:
+            self.slope0 = 0.0
         names = [f"{model.names[j]}.{p}" for j in range(1, model.njoints)
                  for p in INERTIAL_NAMES] if model is not None else []
-        self.names = [names[c] for c in self.columns] + \
+        self.names = [names[c] for c in self.columns] + ["ground.slope"] * self.n_tilt + \
             [f"{m}.bias" for m in self.motor_names[:self.n_bias]]
 
     @property
     def n_params(self) -> int:
-        return self.n_pi + self.n_bias
+        return self.n_pi + self.n_tilt + self.n_bias
+
+    @property
+    def n_features(self) -> int:
+        """The columns of :meth:`regressor`: the model correction's and the slope's."""
+        return self.n_pi + self.n_tilt
 
     def initial_parameters(self) -> np.ndarray:
         """Zero: learning starts from the known model and no bias."""
@@ -85,20 +111,34 @@ class WalkerModelLearner:
 
     def split(self, theta_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(theta_pi, b)``: the inertial-parameter correction and the motor biases [N m]."""
-        b = theta_m[self.n_pi:] if self.n_bias else np.zeros(self.k)
+        b = theta_m[self.n_features:] if self.n_bias else np.zeros(self.k)
         return theta_m[:self.n_pi], b
 
+    def slope(self, theta_m: np.ndarray) -> float:
+        r"""The identified ground slope :math:`\alpha_0 + \delta\alpha` [rad] (downhill
+        along +x; the known one without ``learning.model.slope``)."""
+        return self.slope0 + (float(theta_m[self.n_pi]) if self.n_tilt else 0.0)
+
+    def tilt_column(self, qd: np.ndarray) -> np.ndarray:
+        r""":math:`g_t(q)` ``(nv,)`` [N m / rad]: the generalized-force change per radian of
+        ground slope, RNEA(q, 0, 0) by Pinocchio with gravity along the ground's tangent."""
+        return pin.computeGeneralizedGravity(self.tilt_model, self.tilt_data, qd).copy()
+
     def regressor(self, qd: np.ndarray, vd: np.ndarray, ad: np.ndarray) -> np.ndarray:
-        """:math:`Y` ``(nv, n_pi)`` at one desired state (the :attr:`columns`)."""
-        return pin.computeJointTorqueRegressor(self.model, self.data, qd, vd, ad)[:, self.columns]
+        """:math:`[Y, g_t]` ``(nv, n_features)`` at one desired state: the regressor's
+        :attr:`columns`, then the slope's column (``learning.model.slope``)."""
+        Y = pin.computeJointTorqueRegressor(self.model, self.data, qd, vd, ad)[:, self.columns]
+        if self.n_tilt:
+            Y = np.column_stack([Y, self.tilt_column(qd)])
+        return Y
 
     def correction(self, theta_m: np.ndarray):
-        """``(qd, vd, ad) -> Y theta_pi`` [N m] (generalized forces), or None without a model
-        correction."""
-        if not self.n_pi:
+        """``(qd, vd, ad) -> Y theta_pi (+ g_t delta alpha)`` [N m] (generalized forces), or
+        None without a model correction."""
+        if not self.n_features:
             return None
-        theta_pi = theta_m[:self.n_pi].copy()
-        return lambda qd, vd, ad: self.regressor(qd, vd, ad) @ theta_pi
+        theta = theta_m[:self.n_features].copy()
+        return lambda qd, vd, ad: self.regressor(qd, vd, ad) @ theta
 
     def step(self, theta_m: np.ndarray, Qd: np.ndarray, Vd: np.ndarray, Ad: np.ndarray,
              A: np.ndarray, E: np.ndarray) -> np.ndarray:
@@ -109,7 +149,7 @@ class WalkerModelLearner:
             return theta_m
         Em = np.einsum("kmr,kr->km", A, E)
         blocks = []
-        if self.n_pi:
+        if self.n_features:
             Y = np.stack([self.regressor(Qd[i], Vd[i], Ad[i]) for i in range(n)])
             blocks.append(np.einsum("kmr,krp->kmp", A, Y))
         if self.n_bias:
@@ -119,9 +159,17 @@ class WalkerModelLearner:
         H = np.einsum("kmp,kms->ps", Phi, Phi)
         lam = self.damping * float(np.mean(np.diag(H))) + 1e-300
         delta = np.linalg.solve(H + lam * np.eye(self.n_params), g)
-        rates = np.concatenate([np.full(self.n_pi, self.rate), np.full(self.n_bias,
-                                                                        self.bias_rate)])
+        rates = np.concatenate([np.full(self.n_pi, self.rate),
+                                np.full(self.n_tilt, self.slope_rate),
+                                np.full(self.n_bias, self.bias_rate)])
         return theta_m + rates * delta
+
+
+def tilt_direction(g: np.ndarray) -> np.ndarray:
+    r""":math:`\partial g / \partial \alpha` [m/s^2 / rad] for gravity ``g`` =
+    :math:`|g|(\sin\alpha, 0, -\cos\alpha)`: :math:`|g|(\cos\alpha, 0, \sin\alpha)`
+    (gravity turned a quarter turn about y, along the ground's tangent)."""
+    return np.array([-g[2], 0.0, g[0]])
 
 
 def moving_columns(model: pin.Model, samples: int = 8) -> np.ndarray:
@@ -140,4 +188,4 @@ def moving_columns(model: pin.Model, samples: int = 8) -> np.ndarray:
     return np.flatnonzero(norm > 1e-9 * max(norm.max(), 1e-300))
 
 
-__all__ = ["WalkerModelLearner", "moving_columns"]
+__all__ = ["WalkerModelLearner", "moving_columns", "tilt_direction"]

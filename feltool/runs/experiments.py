@@ -44,8 +44,10 @@ def build_experiment(raw: dict[str, Any], source: Path | None = None,
     if source is not None and not isinstance(source, (str, Path)):
         raise ConfigError([("", f"source: must be the config file's path or None, got "
                                 f"{type(source).__name__}")])
-    return choose_engine(assemble_experiment(raw, Path(source) if source is not None else None,
-                                             check_targets))
+    exp = choose_engine(assemble_experiment(raw, Path(source) if source is not None else None,
+                                            check_targets))
+    exp.raw = raw
+    return exp
 
 
 def load_experiment(path: str | Path, overrides: list[str] | None = None) -> Experiment:

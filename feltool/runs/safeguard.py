@@ -84,6 +84,15 @@ class Safeguard:
         if self.enabled:
             set_step_scale(self.exp, self.scale)
 
+    def new_reference(self, exp: Experiment, cycle: int) -> None:
+        """After ``cycle`` the run walks a new design (``learning.redesign``, experiment
+        ``exp``): the next two cycles' feedback is not compared with the old reference's, and
+        no step of the old one is undone."""
+        self.exp, self.fallback, self._n = exp, None, None
+        self._events.update({cycle + 1, cycle + 2})
+        if self.enabled:
+            set_step_scale(exp, self.scale)
+
     def finish(self) -> None:
         """After the seed: the experiment's rates as they were (scale 1)."""
         if self.enabled:

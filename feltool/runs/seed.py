@@ -38,6 +38,7 @@ from feltool.plant.events import plant_for_cycle, world_plant
 from feltool.runs.checkpoint import Checkpointer
 from feltool.runs.divergence import explain as explain_divergence
 from feltool.runs.observers import Callback, SeedCheckpoints, SeedRecord
+from feltool.runs.redesign import Redesigner
 from feltool.runs.safeguard import Safeguard
 
 
@@ -82,8 +83,8 @@ def initial_state(exp: Experiment, seed: int) -> SeedState:
 def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
              progress: Callable[[int, float], None] | None = None,
              checkpoint: Checkpointer | None = None,
-             on_cycle: Callable[[int, CycleLog, np.ndarray, float], None] | None = None
-             ) -> SeedResult:
+             on_cycle: Callable[[int, CycleLog, np.ndarray, float], None] | None = None,
+             redesign_world: Callable | None = None) -> SeedResult:
     """Run one seed's learning and return its metrics (see the run directory's metrics.csv).
 
     Its one job is to drive the cycles: each is run by the experiment's engine
@@ -99,6 +100,9 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
         on_cycle: Called after every cycle with (cycle, log, Qd, fb): the cycle's simulated
             states ``log.q`` (n_steps x nv, [rad]), its forward (desired) trajectory ``Qd``
             (n_steps x nv, [rad]) and fb as for ``progress`` (the live viewer streams these).
+        redesign_world: With ``learning.redesign``: ``theta_m -> (pin.Model, slope [rad])``,
+            the world a re-design takes as identified (default: the model learner's,
+            :mod:`feltool.runs.redesign`; a benchmark's oracle gives the plant's).
     """
     if not isinstance(exp, Experiment):
         raise InputError(f"exp: must be an Experiment (feltool.load_experiment), got "
@@ -125,6 +129,7 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
     record.started = time.perf_counter()
     state.plant = _plant_at_start(exp, start)
     reason, out = None, None
+    redesigner = Redesigner(exp, seed, redesign_world) if exp.config.learning.redesign is not None else None
     guard.start()
     try:
         for cycle in range(start, cycles + 1):
@@ -143,10 +148,21 @@ def run_seed(exp: Experiment, seed: int, cycles: int | None = None,
             state = nxt
             for observer in observers:
                 observer.after_cycle(cycle, out, state, row)
+            new = redesigner.after_cycle(cycle, exp, state.theta_m, out) if redesigner \
+                else None
+            if new is not None and cycle < cycles:  # the next cycle walks the new design
+                exp = new
+                state.theta = exp.initial_parameters(seed)  # the RMPs refit to it
+                run_cycle = _cycle_runner(exp, state.theta, seed)
+                state.plant = _plant_at_start(exp, cycle + 1)
+                guard.new_reference(exp, cycle)
+                record.exp = exp
     finally:
         guard.finish()
     summary = record.summary(state, reason, cycles, compile_s, out)
     summary.update(guard.summary())
+    if redesigner is not None:
+        summary["redesign"] = redesigner.summary()
     if saver is not None:
         saver.finish(state, reason)
     return SeedResult(seed, record.rows, summary, record.parameters(state, run_cycle),

@@ -507,8 +507,12 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         def trace():
             rows = engine.trace(0, state0, data, params)[2]
             rw = {n: x[:, :m].T for n, x in unpack(rows, row_fields(nv)).items()}
-            return CycleLog(rw["q"], rw["v"], rw["U"], x_end[:nv], x_end[nv:], rw["Urows"],
-                            rw["Uerr"]), rw["qd"]
+            log = CycleLog(rw["q"], rw["v"], rw["U"], x_end[:nv], x_end[nv:], rw["Urows"],
+                           rw["Uerr"])
+            # the applied generalized forces B u and the touchdowns' control steps (what a
+            # re-design identifies the world from, feltool.runs.redesign)
+            log.applied, log.touchdowns = rw["tau"], np.flatnonzero(rw["impact"][:, 0] > 0)
+            return log, rw["qd"]
 
         out = CycleOutcome(theta_next, x_end[:nv], x_end[nv:], stats[:nv], stats[nv:2 * nv],
                            max_error, max_speed, finite == 1.0 and np.isfinite(state).all(),

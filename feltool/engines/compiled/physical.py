@@ -477,6 +477,7 @@ def physical_cycle_function(exp, plant=None, full: bool = False, name: str = "ph
         delta = ca.solve(H + lam * ca.DM.eye(Pm), st["grad_m"])
         ml = exp.model_learner
         rates = ca.vertcat(ca.repmat(split_params(lay, params[:lay.n_params])[5], ml.n_pi, 1),
+                           ca.DM.ones(ml.n_tilt) * ml.slope_rate,
                            ca.DM.ones(ml.n_bias) * ml.bias_rate)
         theta_m_next = ca.if_else(stop == 0, theta_m + rates * delta, theta_m)
     outs = [ca.vertcat(theta_next, theta_m_next, st["q"], st["v"]), ca.vertcat(*stats)]

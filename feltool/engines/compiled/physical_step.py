@@ -99,11 +99,16 @@ class Kin:
                                                       ca.DM.zeros(2 * nv + 3))])
         # the model correction's regressor (learning.model): Y = d RNEA / d pi, its columns
         learner = exp.model_learner
-        self.n_pi = learner.n_pi if getattr(learner, "walker", False) else 0
+        # (with a learned ground slope its column last: RNEA(q, 0, 0) with gravity along the
+        # ground's tangent, feltool.learning.walker_model.tilt_direction)
+        self.n_pi = learner.n_features if getattr(learner, "walker", False) else 0
         if self.n_pi:
             pi_s = ca.SX.sym("pi", 10 * (model.njoints - 1))
             Y = ca.jacobian(symbolic_rnea_world(model)(q, v, a, pi_s, g_known), pi_s)
             Y = ca.substitute(Y, pi_s, ca.DM.zeros(pi_s.shape[0]))[:, list(learner.columns)]
+            if learner.n_tilt:
+                tangent = ca.vertcat(-g_known[2], 0.0, g_known[0])
+                Y = ca.horzcat(Y, rnea(q, ca.DM.zeros(nv), ca.DM.zeros(nv), tangent))
             self.regressor = ca.Function("regressor", [q, v, a, g_known], [ca.densify(Y)])
         # the plant: RNEA of the world's parameters
         self.n_world = world_size(model)
