@@ -65,7 +65,7 @@ LEARNERS = {
 #: and the gait re-designed online on the identified model (``learning.redesign``) with the
 #: shipped gait's design options (the first line of its config)
 REDESIGN = {
-    "three_link_walker": "step_length_m: 0.5, duration_s: 0.6, torso_rad: 0.1, "
+    "three_link_walker": "step_length_m: 0.5, duration_s: 0.6, torso_rad: 0.1, blend_cycles: 10, "
                          "friction_margin: 0.6, normal_force_margin: 0.5",
     "five_link_walker": "speed_m_s: 0.8, duration_s: 0.5, torso_rad: 0.1",
     "compass_gait": "step_length_m: 0.4, duration_s: 0.6",

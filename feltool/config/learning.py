@@ -109,6 +109,10 @@ class RedesignConfig(Strict):
     knots: int = Field(40, ge=4, le=1000, description="Collocation intervals per step.")
     verify_steps: int = Field(4, ge=2, le=1000, description="Steps the new design walks in "
         "the identified world before its orbit is closed (feltool gait --verify-steps).")
+    blend_cycles: int = Field(1, ge=1, le=1000, description="Cycles over which the reference "
+        "moves from the old design to the new one, linearly in phase (the k-th of them walks "
+        "k/blend_cycles of the way; 1: the new design at once). A walker whose new gait is far "
+        "from the old one may slide or lift a foot at a sudden switch.")
     max_failures: int = Field(5, ge=1, le=1000, description="Stop re-designing after this "
         "many failed designs (each keeps the old reference; counted in the summary).")
 

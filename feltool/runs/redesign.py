@@ -301,6 +301,8 @@ class Redesigner:
     walked_s: float = 0.0
     designs: list[dict] = field(default_factory=list)
     failures: list[dict] = field(default_factory=list)
+    #: the configs of the blend's cycles still to walk (``blend_cycles``)
+    pending: list[dict] = field(default_factory=list)
 
     def __post_init__(self):
         self.cfg = self.exp.config.learning.redesign
@@ -323,6 +325,8 @@ class Redesigner:
         """After ``cycle`` of ``exp`` (the current design's experiment, its outcome ``out``):
         the new design's experiment when one is due and found, else None."""
         self.walked_s += exp.config.period_s
+        if self.pending:  # the blend towards the last design goes on
+            return self._build(self.pending.pop(0))
         if (theta_m is None or self.walked_s < self.cfg.every_s - 1e-9
                 or len(self.failures) >= self.cfg.max_failures):
             return None
@@ -348,7 +352,8 @@ class Redesigner:
         entry = {"cycle": cycle, "mass_kg": world.mass, "com_m": world.com[[0, 2]].tolist(),
                  "slope_rad": world.slope, "projected_bodies": projected}
         try:
-            new = self.design(model, world.slope)
+            configs = self.blend(exp.raw, self.design_config(model, world.slope))
+            new = self._build(configs[0])
         except FeltoolError as exc:  # IPOPT found no gait (or it is not a config): keep the old
             entry["reason"] = str(exc).splitlines()[0][:300]
             self.failures.append(entry)
@@ -356,14 +361,51 @@ class Redesigner:
         entry["seconds"] = time.perf_counter() - t0
         self.designs.append(entry)
         self.current = world
+        self.pending = configs[1:]
         return new
 
-    def design(self, model: pin.Model, slope: float) -> Experiment:
-        """The experiment of the gait designed on ``model`` and ``slope`` [rad] with the
-        block's options: the run's config with the new demos (the known model's gravity and
-        robot unchanged)."""
+    def _build(self, config: dict) -> Experiment:
         from feltool.runs.experiments import build_experiment
 
+        return build_experiment(config, self.exp.source)
+
+    def blend(self, old: dict, new: dict) -> list[dict]:
+        """The configs of the ``blend_cycles`` cycles from the ``old`` design's reference to the
+        ``new`` one's: the k-th walks :math:`s = k/K` of the way, its period
+        :math:`T_s = (1-s) T_0 + s T_1` [s] and each demo blended in phase
+        :math:`\varphi \in [0, 1]`, :math:`q_s(\varphi) = (1-s) q_0(\varphi) + s q_1(\varphi)`,
+        with the velocities and accelerations of that same curve in time
+        (:math:`\dot q_s = ((1-s) T_0 \dot q_0 + s T_1 \dot q_1) / T_s`, and
+        :math:`\ddot q_s` with :math:`T^2`); the old demo is interpolated onto the new one's
+        samples. The last is ``new``."""
+        K = self.cfg.blend_cycles
+        out = []
+        T0, T1 = float(old["period_s"]), float(new["period_s"])
+        for k in range(1, K):
+            s = k / K
+            Ts = (1 - s) * T0 + s * T1
+            cfg = copy.deepcopy(new)
+            cfg["period_s"] = Ts
+            for name, jc in new["joints"].items():
+                d1 = jc.get("demo") if isinstance(jc, dict) else None
+                d0 = old["joints"].get(name, {}).get("demo")
+                if not (isinstance(d1, dict) and isinstance(d0, dict)
+                        and d1.get("kind") == d0.get("kind") == "samples"):
+                    continue
+                phi1 = np.linspace(0.0, 1.0, len(d1["q"]))
+                phi0 = np.linspace(0.0, 1.0, len(d0["q"]))
+                blended = {"kind": "samples"}
+                for key, power in (("q", 0), ("v", 1), ("a", 2)):
+                    x0 = np.interp(phi1, phi0, np.asarray(d0[key], float)) * T0**power
+                    x1 = np.asarray(d1[key], float) * T1**power
+                    blended[key] = (((1 - s) * x0 + s * x1) / Ts**power).tolist()
+                cfg["joints"][name]["demo"] = blended
+            out.append(cfg)
+        return out + [new]
+
+    def design_config(self, model: pin.Model, slope: float) -> dict:
+        """The run's config with the demos of the gait designed on ``model`` and ``slope``
+        [rad] with the block's options (the known model's gravity and robot unchanged)."""
         raw = copy.deepcopy(self.exp.raw)
         c = self.cfg
         key = (model.saveToString(), float(slope), c.model_dump_json(),
@@ -380,7 +422,7 @@ class Redesigner:
                 config["joints"][name]["demo"] = copy.deepcopy(jc["demo"])
                 if jc.get("follow_demo"):
                     config["joints"][name]["follow_demo"] = True
-        return build_experiment(config, self.exp.source)
+        return config
 
     def designed(self, raw: dict, model: pin.Model, slope: float) -> dict:
         """The config of the gait designed in the identified world (``model``'s inertias as a
