@@ -47,6 +47,7 @@ def split_source(text: str, stem: str, parts: int) -> list[str] | None:
     if start is None or len(blocks) < 2:
         return None
     header, tail = rest[:start], rest[start:]
+    first, others = _shared_zeros(header, stem)
     names = [name for name, _ in blocks]
     shared = [line for name in names
               for line in (f"#undef {name}", f"#define {name} {stem}_{name[len('casadi_'):]}")]
@@ -59,13 +60,29 @@ def split_source(text: str, stem: str, parts: int) -> list[str] | None:
         size[j] += len(body)
     out = []
     for j in range(parts):
-        own = header if j == 0 else _without_exports(
+        own = first if j == 0 else _without_exports(
             [f"  #define CASADI_PREFIX(ID) {stem}_p{j}_ ## ID" if line == prefix else line
-             for line in header])
+             for line in others])
         out.append("\n".join(own + shared + share[j] + (tail if j == 0 else ["#ifdef __cplusplus",
                                                                             "} /* extern \"C\" */",
                                                                             "#endif", ""])))
     return out
+
+
+_ZEROS = re.compile(r"^static const casadi_real casadi_zeros\[(\d+)\] = $")
+
+
+def _shared_zeros(header: list[str], stem: str) -> tuple[list[str], list[str]]:
+    """The first part's header and the others': CasADi's array of zeros (as long as the
+    largest argument: 1.6 MB for a walker) defined in the first, declared in the others."""
+    for i, line in enumerate(header[:-1]):
+        m = _ZEROS.match(line)
+        if m and header[i + 1] == "  {0.};":
+            head, tail = header[:i] + ["#undef casadi_zeros",
+                                       f"#define casadi_zeros {stem}_zeros"], header[i + 2:]
+            array = f"{_HIDDEN} const casadi_real casadi_zeros[{m.group(1)}]"
+            return head + [array + " = {0.};"] + tail, head + [f"extern {array};"] + tail
+    return header, header
 
 
 def _without_exports(header: list[str]) -> list[str]:
