@@ -9,7 +9,7 @@ from pathlib import Path
 
 from feltool.cli.common import positive_int, subcommand
 from feltool.cli.view import exit_on_sigterm
-from feltool.errors import InputError
+from feltool.errors import FeltoolError, InputError
 
 #: Collocation intervals per step: a passive gait's period and step length are free and set by
 #: the physics alone, so it gets more (100 match Drake's passive compass gait to 0.2 %).
@@ -20,17 +20,11 @@ def cmd_gait(args: argparse.Namespace) -> int:
     """Design a walker's periodic gait (feltool/gait/design.py), verify it in feltool's own
     walker and close it on the loop's orbit (feltool/gait/orbit.py), write it as RMP demos."""
     from feltool.config.files import read_yaml
+    from feltool.engines.compiled.library import cancel_pending
     from feltool.experiment.assemble import validate
-    from feltool.gait.config import (
-        gait_config,
-        gait_spec,
-        walker_from_raw,
-        write_gait_config,
-    )
-    from feltool.gait.defaults import complete_walker, placeholder_gait, robot_relative_to
-    from feltool.gait.design import design_gait
-    from feltool.gait.orbit import GaitNotWalking, close_on_orbit, verify_design
-    from feltool.runs.experiments import build_experiment, resolve_config_path
+    from feltool.gait.config import gait_config, gait_spec, walker_from_raw
+    from feltool.gait.defaults import complete_walker, placeholder_gait
+    from feltool.runs.experiments import resolve_config_path
 
     path = resolve_config_path(args.config)
     raw = read_yaml(path)
@@ -46,11 +40,33 @@ def cmd_gait(args: argparse.Namespace) -> int:
                      friction_margin=args.friction_margin,
                      normal_force_margin=args.normal_force_margin,
                      clearance_margin_m=args.clearance)
-    out = args.out or Path(f"{path.stem}-gait.yaml")
     # the whole config as it will be written (its demos the standing pose), before the solve
-    validate(gait_config(raw, walker, placeholder_gait(walker, spec), spec, settings), path)
+    provisional = gait_config(raw, walker, placeholder_gait(walker, spec), spec, settings)
+    validate(provisional, path)
     for line in defaults:
         print(f"  default {line}")
+    try:
+        return _design_and_verify(args, path, raw, walker, settings, spec, defaults, provisional)
+    finally:
+        cancel_pending()  # (a library started ahead and not used: a failed design)
+
+
+def _design_and_verify(args: argparse.Namespace, path: Path, raw: dict, walker, settings, spec,
+                       defaults: list[str], provisional: dict) -> int:
+    """:func:`cmd_gait` from the design on: the walker's compiled library (its graphs do not
+    depend on the design: its demos and period are inputs) compiled meanwhile."""
+    from feltool.engines.compiled.engine import compile_engine_ahead
+    from feltool.gait.config import gait_config, write_gait_config
+    from feltool.gait.defaults import robot_relative_to
+    from feltool.gait.design import design_gait
+    from feltool.gait.orbit import GaitNotWalking, close_on_orbit, verify_design
+    from feltool.runs.experiments import build_experiment
+
+    try:
+        compile_engine_ahead(build_experiment(provisional, path))
+    except FeltoolError:
+        pass  # (only time: the design's own experiment is built and reports it)
+    out = args.out or Path(f"{path.stem}-gait.yaml")
 
     def progress(it: int, viol: float, cost: float) -> None:
         if args.progress and it % 5 == 0:

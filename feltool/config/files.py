@@ -20,6 +20,9 @@ from feltool.config.experiment import ExperimentConfig
 from feltool.config.safe_yaml import YamlBoundError, load_yaml
 from feltool.errors import ConfigError
 
+#: libyaml's composer when PyYAML has it (the same nodes and marks as PyYAML's, ~10x faster).
+_COMPOSER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
 
 def read_yaml(path: Path) -> dict[str, Any]:
     """Read a YAML mapping safely (no object construction), with errors that name the file."""
@@ -41,7 +44,7 @@ def read_yaml(path: Path) -> dict[str, Any]:
                           str(path))
     try:
         data = load_yaml(text)  # safe: no object construction, bounded depth and aliases
-        duplicates = _duplicate_keys(yaml.compose(text, Loader=yaml.SafeLoader))
+        duplicates = _duplicate_keys(yaml.compose(text, Loader=_COMPOSER))
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""

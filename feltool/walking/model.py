@@ -25,6 +25,7 @@ velocities), an involution like the plain exchange.
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,7 +68,7 @@ def with_planar_base(robot: Robot, mount: pin.SE3 | None = None) -> Robot:
     model.lowerPositionLimit[:3] = -np.inf
     model.upperPositionLimit[:3] = np.inf
     return Robot(name=robot.name, model=model, source=robot.source, urdf_path=robot.urdf_path,
-                 package_dirs=list(robot.package_dirs))
+                 package_dirs=list(robot.package_dirs), urdf_xml=robot.urdf_xml)
 
 
 @dataclass
@@ -147,10 +148,12 @@ def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple
         RobotError: naming an unknown frame, link or joint.
     """
     if base == "planar":
+        robot, feet, note = _rerooted_at_the_hip(robot, feet, legs)
         if any(a == BASE_JOINTS[2] and robot.model.existJointName(b)
                and robot.model.joints[robot.model.getJointId(b)].nq == 2 for a, b in legs):
             robot = with_angle_coordinates(robot)  # a continuous hip paired with base_pitch
         robot = with_planar_base(robot, _hip_mount(robot, legs))
+        robot.warnings += note  # (the load report's other lines were said when it was loaded)
         base_names = list(BASE_JOINTS)
     else:
         base_names = list(base)
@@ -176,6 +179,48 @@ def build_walker_model(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple
     return WalkerModel(robot=robot, base=base_names, feet=frame_ids,
                        legs=[(a, b) for a, b in legs], swap_q=swap_q, swap_v=swap_v,
                        chained=tuple(chained))
+
+
+def _rerooted_at_the_hip(robot: Robot, feet: dict[str, FootSpec], legs: list[tuple[str, str]]
+                         ) -> tuple[Robot, dict[str, FootSpec], list[str]]:
+    """A walker whose URDF is rooted on a leg (a foot, a shin: a legs pair ``[a, b]`` of
+    joints, neither ``base_pitch``, one hanging from the other) re-rooted at the link between
+    the pair's joints (the hip's: :func:`feltool.robot.reroot.reroot_urdf`), so that its base is
+    there and the pair exchanges like any other; the feet's offsets follow their links' new
+    frames. The reversed joints' coordinates are the negatives of the URDF's (the note said).
+    Else ``robot`` and ``feet`` as they are, and no note."""
+    from feltool.robot.reroot import reroot_urdf
+    from feltool.robot.robot import load_urdf_string
+
+    model = robot.model
+    for a, b in legs:
+        if BASE_JOINTS[2] in (a, b) or not (model.existJointName(a) and model.existJointName(b)):
+            continue
+        ia, ib = model.getJointId(a), model.getJointId(b)
+        if ib in (ia, 0) or ia == 0 or (model.parents[ib] != ia and model.parents[ia] != ib):
+            continue
+        lower = b if model.parents[ib] == ia else a
+        xml = robot.description
+        joint = next(j for j in ET.fromstring(xml).findall("joint") if j.get("name") == lower)
+        hip = joint.find("parent").get("link")
+        text, moved, flipped = reroot_urdf(xml, hip)
+        new = load_urdf_string(text, name=robot.name, package_dirs=robot.package_dirs)
+        if model.nq == model.nv:  # (its continuous joints were read in angle coordinates)
+            new = with_angle_coordinates(new)
+        new.source, new.urdf_path, new.model.gravity = robot.source, robot.urdf_path, \
+            robot.model.gravity
+        note = [f"robot '{robot.name}': rooted on a leg, re-rooted at its hip link '{hip}' "
+                f"(joints {', '.join(flipped)} reversed: their angles are the negatives of the "
+                "URDF's)"]
+        out = {}
+        for foot, spec in feet.items():
+            if spec.link in moved:
+                p = moved[spec.link].actInv(np.asarray(spec.offset, dtype=float))
+                spec = FootSpec(frame=spec.frame, link=spec.link,
+                                offset=tuple(float(x) for x in p))
+            out[foot] = spec
+        return new, out, note
+    return robot, feet, []
 
 
 def _hip_mount(robot: Robot, legs: list[tuple[str, str]]) -> pin.SE3 | None:

@@ -33,8 +33,11 @@ from feltool.engines.compiled.graph import (
 from feltool.engines.compiled.library import (
     CYCLES_PER_CALL,
     cached,
+    compile_ahead,
     compile_functions,
+    has_library,
     note_once,
+    pending,
 )
 from feltool.engines.compiled.support import check_supported
 from feltool.engines.outcome import CycleOutcome
@@ -132,7 +135,8 @@ class CompiledEngine:
             leave :attr:`functions` None.
     """
 
-    def __init__(self, exp: Experiment, compile: bool = True, vm_fallback: bool = True):
+    def __init__(self, exp: Experiment, compile: bool = True, vm_fallback: bool = True,
+                 ahead: bool = False):
         check_supported(exp)
         self.physical = exp.config.walking is not None and exp.config.walking.physical
         self.exp, self.lay = exp, layout(exp)
@@ -152,10 +156,19 @@ class CompiledEngine:
         # (a physical walker's one build serves every world: its plant is an input)
         n_worlds = 1 if self.physical else len(plants)
         fns = cached(key, self._names(n_worlds)) if key is not None else None
-        if fns is None:
+        if fns is None and key is not None and pending(key) is not None:  # (started ahead)
+            fns = None if ahead else compile_functions(pending(key), vm_fallback=vm_fallback,
+                                                       key=key)
+        elif fns is None:
             fns = self._build(exp, plants)
-            if compile:
+            if ahead:  # only started: compile_ahead's
+                compile_ahead(fns, key)
+                fns = None
+            elif compile:
                 fns = compile_functions(fns, vm_fallback=vm_fallback, key=key)
+        if ahead:
+            self.functions = None
+            return
         self.functions = fns
         if fns is None:
             return
@@ -527,6 +540,22 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
 
 
 __all__ = ["CompiledEngine", "compiled_runner", "worlds"]
+
+
+def compile_engine_ahead(exp: Experiment) -> bool:
+    """Start compiling the library of ``exp``'s compiled physical walker and return at once
+    (:func:`feltool.engines.compiled.library.compile_ahead`: its graphs built and generated
+    now, the C compilers left running); the first :func:`compiled_engine` of an experiment with
+    the same library then waits for them. ``feltool gait`` starts its walker's library so
+    before the design, whose demos and period are the library's inputs. False when nothing was
+    started (not a physical walker on the compiled engine, or its library cached)."""
+    if exp.engine != "compiled" or exp.config.walking is None or not exp.config.walking.physical:
+        return False
+    key = _physical_key(exp)
+    if has_library(key) or pending(key) is not None:
+        return False
+    CompiledEngine(exp, ahead=True)
+    return pending(key) is not None
 
 
 def compiled_engine(exp: Experiment) -> CompiledEngine | None:
