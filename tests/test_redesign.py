@@ -21,6 +21,7 @@ from feltool.gait.design import design_gait
 from feltool.plant.events import changed_model, world_plant
 from feltool.runs.experiments import load_experiment
 from feltool.runs.redesign import (
+    blend_designs,
     cycle_measurements,
     identified_model,
     identified_urdf,
@@ -253,3 +254,36 @@ def test_redesign_on_an_arm_exits_2(tmp_path, capsys):
                  "--no-progress", "--set", REDESIGN % 10.0])
     err = capsys.readouterr().err
     assert code == 2 and "learning.redesign" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_blend_walks_from_the_old_design_to_the_new_one_on_one_curve():
+    """``blend_cycles``: K configs, the last the new design, the k-th's period and positions
+    k/K of the way in phase; its velocities and accelerations are that blended curve's own
+    derivatives in time (finite differences of its positions), whatever the two designs'
+    periods and sample counts."""
+    def demo(f, T, n):
+        t = np.linspace(0.0, T, n)
+        h = 1e-6
+        q = f(t / T)
+        v = (f((t + h) / T) - f((t - h) / T)) / (2 * h)
+        a = (f((t + h) / T) - 2 * q + f((t - h) / T)) / h**2
+        return {"kind": "samples", "q": q.tolist(), "v": v.tolist(), "a": a.tolist()}
+
+    f0 = lambda p: 0.3 * np.sin(2 * np.pi * p)  # noqa: E731
+    f1 = lambda p: 0.2 * np.cos(2 * np.pi * p) + 0.1 * p  # noqa: E731
+    old = {"period_s": 1.0, "joints": {"hip": {"demo": demo(f0, 1.0, 801)}, "knee": {}}}
+    new = {"period_s": 1.25, "joints": {"hip": {"demo": demo(f1, 1.25, 1001)}, "knee": {}}}
+    configs = blend_designs(old, new, 4)
+    assert len(configs) == 4 and configs[-1] is new
+    for k, cfg in enumerate(configs[:-1], start=1):
+        s = k / 4
+        T = cfg["period_s"]
+        assert T == pytest.approx(1.0 + 0.25 * s, rel=1e-12)
+        d = {key: np.asarray(val) for key, val in cfg["joints"]["hip"]["demo"].items()
+             if key != "kind"}
+        phi = np.linspace(0.0, 1.0, 1001)
+        np.testing.assert_allclose(d["q"], (1 - s) * f0(phi) + s * f1(phi), atol=2e-6)
+        dt = T / 1000
+        np.testing.assert_allclose(np.gradient(d["q"], dt)[5:-5], d["v"][5:-5], atol=2e-4)
+        np.testing.assert_allclose(np.gradient(d["v"], dt)[5:-5], d["a"][5:-5], atol=2e-2)
+        assert cfg["joints"]["knee"] == {}

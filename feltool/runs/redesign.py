@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+from scipy.interpolate import CubicHermiteSpline
 
 from feltool.errors import FeltoolError
 from feltool.experiment.experiment import Experiment
@@ -288,6 +289,45 @@ class World:
                    float(slope))
 
 
+def blend_designs(old: dict, new: dict, cycles: int) -> list[dict]:
+    r"""The configs of the ``cycles`` cycles from the ``old`` design's reference to the ``new``
+    one's (``learning.redesign.blend_cycles``): the k-th walks :math:`s = k/K` of the way, its
+    period :math:`T_s = (1-s) T_0 + s T_1` [s] and each samples demo blended in phase
+    :math:`\varphi \in [0, 1]`, :math:`q_s(\varphi) = (1-s) q_0(\varphi) + s q_1(\varphi)`,
+    with the velocities and accelerations of that same curve in time
+    (:math:`\dot q_s = ((1-s) T_0 \dot q_0 + s T_1 \dot q_1) / T_s`, :math:`\ddot q_s` alike
+    with :math:`T^2`); the old demo is interpolated onto the new one's samples (cubic Hermite). The last is
+    ``new``."""
+    out = []
+    T0, T1 = float(old["period_s"]), float(new["period_s"])
+    for k in range(1, cycles):
+        s = k / cycles
+        Ts = (1 - s) * T0 + s * T1
+        cfg = copy.deepcopy(new)
+        cfg["period_s"] = Ts
+        for name, jc in new["joints"].items():
+            d1 = jc.get("demo") if isinstance(jc, dict) else None
+            d0 = (old["joints"].get(name) or {}).get("demo")
+            if not (isinstance(d1, dict) and isinstance(d0, dict)
+                    and d1.get("kind") == d0.get("kind") == "samples"):
+                continue
+            phi1 = np.linspace(0.0, 1.0, len(d1["q"]))
+            phi0 = np.linspace(0.0, 1.0, len(d0["q"]))
+            # the old demo in phase (d/dphi = T d/dt), on the new one's samples: positions and
+            # velocities by cubic Hermite interpolation on their derivatives
+            q0, v0, a0 = (np.asarray(d0[key], float) * T0**p for key, p in
+                          (("q", 0), ("v", 1), ("a", 2)))
+            old_phase = (CubicHermiteSpline(phi0, q0, v0)(phi1),
+                         CubicHermiteSpline(phi0, v0, a0)(phi1), np.interp(phi1, phi0, a0))
+            blended = {"kind": "samples"}
+            for (key, power), x0 in zip((("q", 0), ("v", 1), ("a", 2)), old_phase):
+                x1 = np.asarray(d1[key], float) * T1**power
+                blended[key] = (((1 - s) * x0 + s * x1) / Ts**power).tolist()
+            cfg["joints"][name]["demo"] = blended
+        out.append(cfg)
+    return out + [new]
+
+
 @dataclass
 class Redesigner:
     """Decides at each cycle's end whether to re-design and builds the new design's
@@ -352,7 +392,8 @@ class Redesigner:
         entry = {"cycle": cycle, "mass_kg": world.mass, "com_m": world.com[[0, 2]].tolist(),
                  "slope_rad": world.slope, "projected_bodies": projected}
         try:
-            configs = self.blend(exp.raw, self.design_config(model, world.slope))
+            configs = blend_designs(exp.raw, self.design_config(model, world.slope),
+                                    self.cfg.blend_cycles)
             new = self._build(configs[0])
         except FeltoolError as exc:  # IPOPT found no gait (or it is not a config): keep the old
             entry["reason"] = str(exc).splitlines()[0][:300]
@@ -368,40 +409,6 @@ class Redesigner:
         from feltool.runs.experiments import build_experiment
 
         return build_experiment(config, self.exp.source)
-
-    def blend(self, old: dict, new: dict) -> list[dict]:
-        """The configs of the ``blend_cycles`` cycles from the ``old`` design's reference to the
-        ``new`` one's: the k-th walks :math:`s = k/K` of the way, its period
-        :math:`T_s = (1-s) T_0 + s T_1` [s] and each demo blended in phase
-        :math:`\varphi \in [0, 1]`, :math:`q_s(\varphi) = (1-s) q_0(\varphi) + s q_1(\varphi)`,
-        with the velocities and accelerations of that same curve in time
-        (:math:`\dot q_s = ((1-s) T_0 \dot q_0 + s T_1 \dot q_1) / T_s`, and
-        :math:`\ddot q_s` with :math:`T^2`); the old demo is interpolated onto the new one's
-        samples. The last is ``new``."""
-        K = self.cfg.blend_cycles
-        out = []
-        T0, T1 = float(old["period_s"]), float(new["period_s"])
-        for k in range(1, K):
-            s = k / K
-            Ts = (1 - s) * T0 + s * T1
-            cfg = copy.deepcopy(new)
-            cfg["period_s"] = Ts
-            for name, jc in new["joints"].items():
-                d1 = jc.get("demo") if isinstance(jc, dict) else None
-                d0 = old["joints"].get(name, {}).get("demo")
-                if not (isinstance(d1, dict) and isinstance(d0, dict)
-                        and d1.get("kind") == d0.get("kind") == "samples"):
-                    continue
-                phi1 = np.linspace(0.0, 1.0, len(d1["q"]))
-                phi0 = np.linspace(0.0, 1.0, len(d0["q"]))
-                blended = {"kind": "samples"}
-                for key, power in (("q", 0), ("v", 1), ("a", 2)):
-                    x0 = np.interp(phi1, phi0, np.asarray(d0[key], float)) * T0**power
-                    x1 = np.asarray(d1[key], float) * T1**power
-                    blended[key] = (((1 - s) * x0 + s * x1) / Ts**power).tolist()
-                cfg["joints"][name]["demo"] = blended
-            out.append(cfg)
-        return out + [new]
 
     def design_config(self, model: pin.Model, slope: float) -> dict:
         """The run's config with the demos of the gait designed on ``model`` and ``slope``
@@ -455,4 +462,4 @@ class Redesigner:
                 "designs": self.designs, "failures": self.failures}
 
 
-__all__ = ["Redesigner", "World", "identified_model", "physical_inertia"]
+__all__ = ["Redesigner", "World", "blend_designs", "identified_model", "physical_inertia"]
