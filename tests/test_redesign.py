@@ -275,6 +275,8 @@ def test_the_blend_walks_from_the_old_design_to_the_new_one_on_one_curve():
     new = {"period_s": 1.25, "joints": {"hip": {"demo": demo(f1, 1.25, 1001)}, "knee": {}}}
     configs = blend_designs(old, new, 4)
     assert len(configs) == 4 and configs[-1] is new
+    sampled = blend_designs(old, dict(new, period_s=1.2), 3, period_unit_s=2 / 500)
+    assert [c["period_s"] * 500 for c in sampled] == pytest.approx([534, 566, 600], abs=1e-9)
     for k, cfg in enumerate(configs[:-1], start=1):
         s = k / 4
         T = cfg["period_s"]

@@ -289,20 +289,24 @@ class World:
                    float(slope))
 
 
-def blend_designs(old: dict, new: dict, cycles: int) -> list[dict]:
+def blend_designs(old: dict, new: dict, cycles: int, period_unit_s: float | None = None
+                  ) -> list[dict]:
     r"""The configs of the ``cycles`` cycles from the ``old`` design's reference to the ``new``
     one's (``learning.redesign.blend_cycles``): the k-th walks :math:`s = k/K` of the way, its
-    period :math:`T_s = (1-s) T_0 + s T_1` [s] and each samples demo blended in phase
-    :math:`\varphi \in [0, 1]`, :math:`q_s(\varphi) = (1-s) q_0(\varphi) + s q_1(\varphi)`,
+    period :math:`T_s = (1-s) T_0 + s T_1` [s] (a whole multiple of ``period_unit_s``) and each
+    samples demo blended in phase :math:`\varphi \in [0, 1]`,
+    :math:`q_s(\varphi) = (1-s) q_0(\varphi) + s q_1(\varphi)`,
     with the velocities and accelerations of that same curve in time
     (:math:`\dot q_s = ((1-s) T_0 \dot q_0 + s T_1 \dot q_1) / T_s`, :math:`\ddot q_s` alike
-    with :math:`T^2`); the old demo is interpolated onto the new one's samples (cubic Hermite). The last is
-    ``new``."""
+    with :math:`T^2`); the old demo is interpolated onto the new one's samples (cubic
+    Hermite). The last is ``new``."""
     out = []
     T0, T1 = float(old["period_s"]), float(new["period_s"])
     for k in range(1, cycles):
         s = k / cycles
         Ts = (1 - s) * T0 + s * T1
+        if period_unit_s is not None:
+            Ts = round(Ts / period_unit_s) * period_unit_s
         cfg = copy.deepcopy(new)
         cfg["period_s"] = Ts
         for name, jc in new["joints"].items():
@@ -341,8 +345,8 @@ class Redesigner:
     walked_s: float = 0.0
     designs: list[dict] = field(default_factory=list)
     failures: list[dict] = field(default_factory=list)
-    #: the configs of the blend's cycles still to walk (``blend_cycles``)
-    pending: list[dict] = field(default_factory=list)
+    #: the experiments of the blend's cycles still to walk (``blend_cycles``)
+    pending: list[Experiment] = field(default_factory=list)
 
     def __post_init__(self):
         self.cfg = self.exp.config.learning.redesign
@@ -366,7 +370,7 @@ class Redesigner:
         the new design's experiment when one is due and found, else None."""
         self.walked_s += exp.config.period_s
         if self.pending:  # the blend towards the last design goes on
-            return self._build(self.pending.pop(0))
+            return self.pending.pop(0)
         if (theta_m is None or self.walked_s < self.cfg.every_s - 1e-9
                 or len(self.failures) >= self.cfg.max_failures):
             return None
@@ -392,9 +396,11 @@ class Redesigner:
         entry = {"cycle": cycle, "mass_kg": world.mass, "com_m": world.com[[0, 2]].tolist(),
                  "slope_rad": world.slope, "projected_bodies": projected}
         try:
+            # a physical walker's cycle: a whole number of samples per step
+            unit = exp.config.walking.steps_per_cycle / exp.config.sim.rate_hz
             configs = blend_designs(exp.raw, self.design_config(model, world.slope),
-                                    self.cfg.blend_cycles)
-            new = self._build(configs[0])
+                                    self.cfg.blend_cycles, unit)
+            blend = [self._build(config) for config in configs]
         except FeltoolError as exc:  # IPOPT found no gait (or it is not a config): keep the old
             entry["reason"] = str(exc).splitlines()[0][:300]
             self.failures.append(entry)
@@ -402,8 +408,8 @@ class Redesigner:
         entry["seconds"] = time.perf_counter() - t0
         self.designs.append(entry)
         self.current = world
-        self.pending = configs[1:]
-        return new
+        self.pending = blend[1:]
+        return blend[0]
 
     def _build(self, config: dict) -> Experiment:
         from feltool.runs.experiments import build_experiment
