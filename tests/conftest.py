@@ -75,3 +75,28 @@ def other_walker_urdf() -> str:
         assert old in text
         text = text.replace(old, new)
     return text
+
+
+def assert_written_gait_walks_from_elsewhere(gait: Path, tmp_path: Path, monkeypatch, capsys
+                                             ) -> None:
+    """``feltool run`` of the gait config ``gait`` (written by ``feltool gait --out``) from
+    another working directory: seeds 0-2, 6 cycles, every seed walks every step (one step per
+    cycle) and exits 0."""
+    import json
+
+    from feltool.cli.main import main
+
+    other = tmp_path / "other"
+    other.mkdir()
+    monkeypatch.chdir(other)  # run from anywhere: the robot path is the written config's
+    run_dir = tmp_path / "run"
+    code = main(["run", str(gait), "--seeds", "0-2", "--out", str(run_dir), "--set",
+                 "sim.cycles=6", "--set", "walking.poincare=false"])
+    out = capsys.readouterr()
+    assert code == 0, out.out + out.err
+    assert "walked without falling: 3/3 seeds; not walking: 0" in out.out
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert [s["seed"] for s in summary["seeds"]] == [0, 1, 2]
+    for seed in summary["seeds"]:  # every step of every cycle walked
+        assert seed["walking"]["walked"] is True and seed["walking"]["not_walking"] is None
+        assert seed["walking"]["steps"] == seed["cycles"] == 6

@@ -8,14 +8,14 @@ every step on 3 seeds from another directory."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pinocchio as pin
 
 from feltool.cli.main import main
 from feltool.robot.robot import load_urdf_string, with_angle_coordinates
 from feltool.walking.model import FootSpec, build_walker_model
+
+from .conftest import assert_written_gait_walks_from_elsewhere
 
 INERTIA = '<inertia ixx="0" ixy="0" ixz="0" iyy="{iyy}" iyz="0" izz="0"/>'
 THIGH, SHIN = 0.4, 0.4
@@ -122,16 +122,5 @@ def test_a_foot_rooted_kneed_walker_designs_writes_elsewhere_and_walks_3_seeds(
     assert code == 0, out.out + out.err
     assert "walked 20 steps: yes" in out.out
     assert "robot: ../walker.urdf" in (src / "elsewhere" / "gait.yaml").read_text()
-    other = tmp_path / "other"
-    other.mkdir()
-    monkeypatch.chdir(other)
-    run_dir = tmp_path / "run"
-    code = main(["run", str(src / "elsewhere" / "gait.yaml"), "--seeds", "0-2", "--out",
-                 str(run_dir), "--set", "sim.cycles=6", "--set", "walking.poincare=false"])
-    out = capsys.readouterr()
-    assert code == 0, out.out + out.err
-    assert "walked without falling: 3/3 seeds; not walking: 0" in out.out
-    summary = json.loads((run_dir / "summary.json").read_text())
-    assert [s["seed"] for s in summary["seeds"]] == [0, 1, 2]
-    for seed in summary["seeds"]:
-        assert seed["walking"]["walked"] is True and seed["walking"]["steps"] == seed["cycles"] == 6
+    assert_written_gait_walks_from_elsewhere(src / "elsewhere" / "gait.yaml", tmp_path,
+                                             monkeypatch, capsys)

@@ -13,7 +13,6 @@ gait against Drake's (period 0.73446 s, step 0.53592 m on a 0.0525 rad slope).
 
 from __future__ import annotations
 
-import json
 import os
 
 import numpy as np
@@ -25,6 +24,8 @@ from feltool.errors import RobotError
 from feltool.robot.robot import captured_stderr, load_robot
 from feltool.walking.model import FootSpec, build_walker_model
 from feltool.walking.standing import standing_pose
+
+from .conftest import assert_written_gait_walks_from_elsewhere
 
 INERTIA = '<inertia ixx="0" ixy="0" ixz="0" iyy="{iyy}" iyz="0" izz="0"/>'
 
@@ -122,20 +123,8 @@ def test_a_published_walker_designs_writes_elsewhere_and_walks_3_seeds(
     assert "robot: ../walker.urdf" in written and f"name: {name}" in written
     assert "# Learning: no joint learns" in written and "learning:" in written
     assert "Default walking.phase: mechanical" in written
-    other = tmp_path / "other"
-    other.mkdir()
-    monkeypatch.chdir(other)  # run from anywhere: the robot path is the written config's
-    run_dir = tmp_path / "run"
-    code = main(["run", str(src / "elsewhere" / "gait.yaml"), "--seeds", "0-2", "--out",
-                 str(run_dir), "--set", "sim.cycles=6", "--set", "walking.poincare=false"])
-    out = capsys.readouterr()
-    assert code == 0, out.out + out.err
-    assert "walked without falling: 3/3 seeds; not walking: 0" in out.out
-    summary = json.loads((run_dir / "summary.json").read_text())
-    assert [s["seed"] for s in summary["seeds"]] == [0, 1, 2]
-    for seed in summary["seeds"]:  # every step of every cycle walked (one step per cycle)
-        assert seed["walking"]["walked"] is True and seed["walking"]["not_walking"] is None
-        assert seed["walking"]["steps"] == seed["cycles"] == 6
+    assert_written_gait_walks_from_elsewhere(src / "elsewhere" / "gait.yaml", tmp_path,
+                                             monkeypatch, capsys)
 
 
 def test_planar_inertia_is_read_leniently_and_acts_as_the_rigid_body_in_the_plane(tmp_path):
