@@ -260,3 +260,20 @@ def test_center_of_mass_matches_pinocchio(robot):
         pin.centerOfMass(model, data, q, v)
         _assert_close(c, data.com[0], 1e-12, f"{name} com")
         _assert_close(dc, data.vcom[0], 1e-12, f"{name} vcom")
+
+
+def test_calls_in_threads_equal_pinocchio_and_keep_their_order():
+    """call_in_threads (a compiled Jacobian's columns on every CPU): each result is Pinocchio's
+    ABA at its own state (the threads' buffers do not mix), in the order given."""
+    from feltool.dynamics.casadi_backend import call_in_threads
+
+    model = _bundled("two_link_arm")
+    data = model.createData()
+    fn = symbolic_aba(model)
+    rng = np.random.default_rng(2012)
+    states = [rng.normal(size=model.nv) for _ in range(9)]
+    v0, tau0 = rng.normal(size=model.nv), rng.normal(size=model.nv)
+    out = call_in_threads(fn, states, v0, tau0)
+    assert len(out) == len(states)
+    for x, (a,) in zip(states, out, strict=True):
+        np.testing.assert_allclose(a, pin.aba(model, data, x, v0, tau0), atol=TOL)

@@ -141,7 +141,6 @@ def test_compiled_runs_several_cycles_per_call_and_resumes_bit_identically(tmp_p
     """The compiled code runs CYCLES_PER_CALL cycles per call; stopping at a cycle that is not a
     multiple of it and resuming from the checkpoint gives the same rows and parameters."""
     import feltool.runs.checkpoint as experiment
-
     from feltool.engines.compiled.library import CYCLES_PER_CALL
     from feltool.runs.checkpoint import Checkpointer, Interrupted
 

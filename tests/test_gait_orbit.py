@@ -106,6 +106,47 @@ def test_the_orbit_is_a_physical_motion_of_the_feedforward_alone(closed):
         np.testing.assert_allclose(sol.y[nv:, -1], log.v[k + 1], atol=1e-7)
 
 
+def test_a_cycle_lasts_its_control_steps_cut_short_at_the_touchdowns(closed):
+    """A touchdown ends its control step (the next starts there): the cycle's duration, in both
+    engines and in the Poincare map's speed, is its full control steps plus the times into the
+    touchdowns' control steps, each located here by scipy's integrator (the stance dynamics
+    under the held torque, an event on the swing foot's height)."""
+    from feltool.engines.compiled.engine import compiled_runner
+
+    _, _, config, orbit, check = closed
+    exp = build_experiment(config, COMPASS)
+    model, data = exp.robot.model, exp.robot.model.createData()
+    W, dt, nv = exp.hybrid.walker, exp.config.dt, exp.robot.model.nv
+    x = np.array(check.poincare["fixed_point_q"] + check.poincare["fixed_point_v"])
+    P, Pv, Pa = exp.primitives.desired(exp.theta_demo)
+    log = exp.hybrid.run_cycle(exp.dynamics, x[:nv], x[nv:], P, Pv, Pa)
+    k = orbit.samples_per_step[0] - 1  # the first touchdown's control step
+    stance, swing = (model.getFrameId(f) for f in ("left_foot", "right_foot"))
+    tau = W.B @ log.tau[k]
+
+    def f(t, y):
+        return np.concatenate([y[nv:], constrained_acceleration(model, data, stance, y[:nv],
+                                                                y[nv:], tau)])
+
+    def height(t, y):
+        pin.framesForwardKinematics(model, data, y[:nv])
+        return data.oMf[swing].translation[2]
+
+    height.terminal, height.direction = True, -1
+    sol = solve_ivp(f, (0.0, dt), np.concatenate([log.q[k], log.v[k]]), events=height,
+                    rtol=1e-11, atol=1e-12, method="DOP853")
+    into = float(sol.t_events[0][0])
+    assert 0.0 < into < dt
+    assert log.steps[0].duration == pytest.approx(k * dt + into, abs=1e-7)
+    # the orbit's two steps are alike: the cycle is two of them, not its 2 m control steps
+    assert log.elapsed == pytest.approx(2 * (k * dt + into), abs=1e-6)
+    assert log.elapsed < len(log.q) * dt - 1e-6
+    out = compiled_runner(exp)(exp.theta_demo, x[:nv], x[nv:], exp.dynamics)
+    assert out.contact["duration"] == pytest.approx(log.elapsed, abs=1e-12)
+    p = check.poincare
+    assert p["speed_m_per_s"] == pytest.approx(p["stride_length_m"] / log.elapsed, rel=1e-9)
+
+
 def test_the_closed_config_replays_its_orbit(closed):
     raw, _, config, orbit, check = closed
     n = len(orbit.q)

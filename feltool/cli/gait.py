@@ -101,7 +101,7 @@ def _design_and_verify(args: argparse.Namespace, path: Path, raw: dict, walker, 
                 raise GaitNotWalking(check)
     except GaitNotWalking as exc:  # nothing written; the failing walk may still be watched
         _print_verification(exc.check, time.perf_counter() - t0)
-        _show_gait(build_experiment(config, path), exc.check, args)
+        _show_gait(lambda: build_experiment(config, path), exc.check, args)
         raise
     _print_verification(check, time.perf_counter() - t0)
     if args.demos == "orbit":
@@ -111,7 +111,7 @@ def _design_and_verify(args: argparse.Namespace, path: Path, raw: dict, walker, 
     write_gait_config(out, robot_relative_to(config, path, out), gait,
                       "feltool gait " + " ".join(sys.argv[2:]), check, defaults)
     print(f"  written: {out}")
-    _show_gait(build_experiment(config, path), check, args)
+    _show_gait(lambda: build_experiment(config, path), check, args)
     return 0
 
 
@@ -133,11 +133,13 @@ def _print_verification(check, seconds: float) -> None:
                  if p.get("fixed_point_found") else ", no fixed point"))
 
 
-def _show_gait(exp, check, args: argparse.Namespace) -> None:
+def _show_gait(build, check, args: argparse.Namespace) -> None:
     """The verified walk in meshcat: an HTML file (``--html``) and/or the live viewer
-    (``--view``) until Ctrl-C or ``--view-timeout``."""
+    (``--view``) until Ctrl-C or ``--view-timeout``; ``build()`` the walk's experiment (built
+    only to be shown)."""
     if not (args.html or args.view) or check.frames is None or not len(check.frames):
         return
+    exp = build()
     dt = exp.config.dt
     if args.html:
         from feltool.viewer.html import record_html

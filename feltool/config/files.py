@@ -19,6 +19,7 @@ from feltool.bounds import (
 from feltool.config.experiment import ExperimentConfig
 from feltool.config.safe_yaml import YamlBoundError, load_yaml
 from feltool.errors import ConfigError
+from feltool.files import dump_yaml
 
 #: libyaml's composer when PyYAML has it (the same nodes and marks as PyYAML's, ~10x faster).
 _COMPOSER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
@@ -192,4 +193,4 @@ def config_to_yaml(cfg: ExperimentConfig, base_dir: Path | None = None) -> str:
         if isinstance(plant, dict) and isinstance(plant.get("robot"), str) and \
                 plant["robot"].endswith(".urdf") and not Path(plant["robot"]).is_absolute():
             plant["robot"] = str((Path(base_dir) / plant["robot"]).resolve())
-    return yaml.safe_dump(data, sort_keys=False)
+    return dump_yaml(data, sort_keys=False)

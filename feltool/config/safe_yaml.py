@@ -77,3 +77,4 @@ def load_yaml(text: str) -> Any:
     """``yaml.safe_load`` of a document within the bounds (:func:`check_bounds`)."""
     check_bounds(text)
     return yaml.load(text, Loader=_LOADER)  # noqa: S506 (a safe loader)
+

@@ -4,6 +4,9 @@ and a low-overhead call of a CasADi function.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import casadi as ca
 import numpy as np
 import pinocchio as pin
@@ -121,6 +124,26 @@ class CasadiDynamics:
         if self.euclidean:
             return q + dq
         return np.array(pin.integrate(self.model, q, dq), dtype=float)
+
+
+def call_in_threads(fn: ca.Function, firsts: list[np.ndarray], *rest: np.ndarray) -> list:
+    """``fn(first, *rest)`` for each of ``firsts``, on every CPU this process may use: threads,
+    each with a :class:`BufferedCall` of its own (CasADi evaluates without the interpreter's
+    lock; a compiled walker cycle's 16 calls took 58 ms on two threads, 106 ms one after the
+    other). The results in order, the same to the bit as one call after the other."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    workers = max(1, min(len(firsts), cpus or 1))
+    keep = tuple(range(1, 1 + len(rest)))
+    calls = [BufferedCall(fn, keep=keep) for _ in range(workers)]
+    if workers == 1:
+        return [calls[0](x, *rest) for x in firsts]
+
+    def part(w: int) -> list:
+        return [calls[w](x, *rest) for x in firsts[w::workers]]
+
+    with ThreadPoolExecutor(workers) as pool:
+        parts = list(pool.map(part, range(workers)))
+    return [parts[i % workers][i // workers] for i in range(len(firsts))]
 
 
 def _batch_methods():

@@ -143,7 +143,8 @@ def contact_metrics(log, exp: Experiment) -> dict[str, float]:
     """Per cycle of a physical walker: the stance foot's smallest normal force [N] and largest
     friction ratio, the swing foot's lowest clearance [m], the largest touchdown impulse ratio,
     the kinetic energy lost at the touchdowns [J], the mean step length [m], the walked
-    distance [m], the cycle's duration [s], the motors' absolute mechanical work [J], the RMS
+    distance [m], the cycle's duration [s] (its control steps, each cut short at a touchdown), the
+    motors' absolute mechanical work [J], the RMS
     of the stabilized quantities' errors from their targets [rad]; also the kind of contact
     violation (``not_walking``), if any."""
     steps = log.steps
@@ -171,7 +172,8 @@ def contact_metrics(log, exp: Experiment) -> dict[str, float]:
         "step_length": float(np.mean([s.length for s in done])) if done else float("nan"),
         "distance": float(sum(s.length for s in done)),
         "steps": len(done),
-        "duration": len(log.q) * dt,
+        "duration": (float(log.elapsed) if np.isfinite(getattr(log, "elapsed", np.nan))
+                     else len(log.q) * dt),
         "work": work,
         "stabilized_rms": float(np.sqrt(np.mean(err**2))) if err.size else 0.0,
         "not_walking": log.not_walking,

@@ -16,10 +16,9 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-import yaml
 
 from feltool.errors import ConfigError, InputError, RobotError
-from feltool.files import atomic_write
+from feltool.files import atomic_write, dump_yaml
 from feltool.gait.design import Gait, GaitSpec
 from feltool.robot.robot import load_robot, robot_spec
 from feltool.walking.model import BASE_JOINTS, FootSpec, WalkerModel, build_walker_model
@@ -267,7 +266,7 @@ def write_gait_config(path: Path, config: dict[str, Any], gait: Gait, command: s
     for line in defaults or []:
         header += f"# Default {line}.\n"
     header += _learning_note(config)
-    text = yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=100)
+    text = dump_yaml(config, sort_keys=False, default_flow_style=None, width=100)
     atomic_write(path, header + text)
 
 

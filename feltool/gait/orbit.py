@@ -83,28 +83,37 @@ class Verification:
 
 
 def verify_design(exp, steps: int = 20, poincare_analysis: bool = True,
-                  spectrum: bool = True) -> Verification:
+                  spectrum: bool = True, jacobian: dict | None = None) -> Verification:
     """Walk the experiment's design (``exp.theta_demo``, nothing learned) for ``steps`` steps
     from its designed start, with the contact checks; then its Poincaré fixed point.
 
     Args:
         exp: A built physical walker experiment (:class:`feltool.experiment.experiment.Experiment`).
-        steps: Steps to walk [-] (rounded up to whole cycles).
+        steps: Steps to walk [-] (rounded up to whole cycles; 0: none, the fixed point
+            searched from the designed start).
         poincare_analysis: Find the fixed point and its spectral radius after the walk.
         spectrum: With the fixed point, its eigenvalues (else only the fixed point: its
             ``spectral_radius`` is not known and :attr:`Verification.stable` is False).
+        jacobian: The fixed point's Newton Jacobian carried between calls
+            (:func:`feltool.gait.poincare.poincare`).
     """
     hyb = exp.hybrid
     W = hyb.walker
     spc = exp.config.walking.steps_per_cycle
     P, Pv, Pa = exp.primitives.desired(exp.theta_demo)
     q, v = hyb.initial_state(P, Pv)
+    if steps == 0:  # only the fixed point
+        out = Verification(True, 0, None, q_end=q, v_end=v)
+        if poincare_analysis:
+            out.poincare = poincare(exp, exp.theta_demo, q, v, spectrum=spectrum,
+                                    jacobian=jacobian)
+        return out
     mg = exp.robot.total_mass * float(np.linalg.norm(exp.robot.model.gravity.linear))
     fast = walk_compiled(exp, q, v, steps, mg)
     if fast is not None:
         if poincare_analysis:
             fast.poincare = poincare(exp, exp.theta_demo, fast.q_end, fast.v_end,
-                                     spectrum=spectrum)
+                                     spectrum=spectrum, jacobian=jacobian)
             p = fast.poincare
             if p.get("fixed_point_found") and p.get("impacts_per_cycle"):
                 n = p["impacts_per_cycle"]  # the periodic gait's own step (touchdowns located
@@ -139,7 +148,8 @@ def verify_design(exp, steps: int = 20, poincare_analysis: bool = True,
                        feedback=float(np.abs(log.u_fb).mean(0).sum()), frames=np.array(frames),
                        scuffs=_scuffs(W, exp.robot.model, np.array(rows_q)), q_end=q, v_end=v)
     if poincare_analysis:
-        out.poincare = poincare(exp, exp.theta_demo, q, v, spectrum=spectrum)
+        out.poincare = poincare(exp, exp.theta_demo, q, v, spectrum=spectrum,
+                                jacobian=jacobian)
     return out
 
 
@@ -346,10 +356,12 @@ def close_on_orbit(raw: dict[str, Any], source: Path | None, build, steps: int =
     Raises:
         GaitNotWalking: the design (or a closed round) does not walk, or has no stable fixed point.
     """
-    current = raw
-    for _ in range(rounds):
+    current, jacobian = raw, {}  # (a round's Jacobian starts the next round's Newton)
+    for i in range(rounds):
         exp = build(current, source)
-        check = verify_design(exp, steps, spectrum=False)  # (the closed config's is checked)
+        # the design walked; a later round's symmetric reference only has its fixed point
+        # found (from its own start) before the closed config's walk
+        check = verify_design(exp, steps if i == 0 else 0, spectrum=False, jacobian=jacobian)
         if not check.walked or not check.poincare.get("fixed_point_found"):
             raise GaitNotWalking(check)
         orbit = periodic_orbit(exp, np.array(check.poincare["fixed_point_q"]

@@ -19,10 +19,10 @@ import math
 
 import numpy as np
 import pinocchio as pin
-import yaml
 
 from feltool.dynamics.pinocchio import mass_matrix
 from feltool.errors import InputError
+from feltool.files import dump_yaml
 from feltool.robot.frames import FrameAngle
 from feltool.robot.robot import Robot
 
@@ -314,4 +314,4 @@ def config_skeleton(robot: Robot, q: np.ndarray | None = None) -> str:
 
 def to_yaml(info: dict) -> str:
     """``describe``'s data as YAML (for ``feltool inspect --format yaml``)."""
-    return yaml.safe_dump(info, sort_keys=False, width=100)
+    return dump_yaml(info, sort_keys=False, width=100)

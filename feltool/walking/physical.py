@@ -57,7 +57,8 @@ class WalkLog(HybridLog):
     matrix ``(n, k, nv)`` at each control step (motor torques per generalized force),
     ``reference`` the feedback's references ``(n, nv)`` [rad], ``inertial`` the inertial
     term :math:`M(q)(\ddot q_r - \ddot q)` ``(n, nv)`` [N m] of the reference's acceleration
-    :math:`\ddot q_r` against the walker's.
+    :math:`\ddot q_r` against the walker's; ``elapsed`` the cycle's time in [s] (its control
+    steps, each cut short at a touchdown).
     """
 
     steps: list = field(default_factory=list)
@@ -69,6 +70,7 @@ class WalkLog(HybridLog):
     allocation: np.ndarray | None = None
     reference: np.ndarray | None = None
     inertial: np.ndarray | None = None
+    elapsed: float = np.nan
 
 
 class PhysicalLoop:
@@ -154,6 +156,7 @@ class PhysicalLoop:
         steps, impacts = [StepStats()], []
         h = self.dt / self.substeps
         j, m, fall, t_step, kind = 0, 0, None, 0.0, None
+        t_ctrl = 0.0  # the control step's start in [s] (a touchdown ends its control step)
         phase_acc = 0.0  # the mechanical phase's acceleration [1/s], from the last step
         try:
             while m < n_max and not (clock and m >= n):
@@ -209,12 +212,12 @@ class PhysicalLoop:
                         a_phase = W.contact.stance(qm, vm, W.B @ u, W.stance).a
                     phase_acc = self._phase_acceleration(W.com_x(qm, vm, a_phase)[2])
                 steps[-1].max_torque = max(steps[-1].max_torque, float(np.abs(u).max()))
-                ended = False
+                ended, t_next = False, t_ctrl + self.dt
                 for i_sub in range(self.substeps):
                     q, v, s = self._substep(contact, q, v, tau, h, steps, Force, k, clock,
                                             now if i_sub == 0 else None)
                     if s is not None:
-                        t_td = k * self.dt + i_sub * h + s
+                        t_td = t_ctrl + i_sub * h + s
                         steps[-1].duration = t_td - t_step
                         t_step = t_td
                         impacts.append((k + 1, True, steps[-1].length))
@@ -226,8 +229,10 @@ class PhysicalLoop:
                             # the next control step starts at the touchdown (the sub-step's
                             # rest is not run); the cycle ends at its last touchdown
                             j = len(impacts) * (n // W.steps_per_cycle) - 1
+                            t_next = t_td
                             ended = len(impacts) >= W.steps_per_cycle
                             break
+                t_ctrl = t_next
                 fall = W.fallen(q, v)
                 if fall or ended:
                     break
@@ -240,7 +245,7 @@ class PhysicalLoop:
         sl = slice(0, m)
         return WalkLog(Q[sl], V[sl], U[sl], q, v, Qd[sl], Vd[sl], Ad[sl], labels[sl],
                        impacts, fall, Urows[sl], Uerr[sl], steps, index[sl], Tau[sl], Force[sl],
-                       hits, kind, Alloc[sl], Ref[sl], Inert[sl])
+                       hits, kind, Alloc[sl], Ref[sl], Inert[sl], t_ctrl)
 
     def command(self, q: np.ndarray, v: np.ndarray, forward: tuple, reference: tuple,
                 label: int) -> tuple:

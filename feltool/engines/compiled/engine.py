@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from feltool.control.closed_loop import CycleLog
-from feltool.dynamics.casadi_backend import BufferedCall
+from feltool.dynamics.casadi_backend import BufferedCall, call_in_threads
 from feltool.engines.compiled.graph import (
     SCALARS,
     cycle_function,
@@ -302,6 +302,13 @@ class CompiledEngine:
         :meth:`world_params`)."""
         return self._calls[self._n_fns * world](state, data, self._params(params))
 
+    def cycles(self, world: int, states: list[np.ndarray], data: np.ndarray,
+               params: np.ndarray | None = None) -> list:
+        """:meth:`cycle` of each of ``states`` (the same ``data`` and ``params``) on every CPU
+        this process may use (:func:`~feltool.dynamics.casadi_backend.call_in_threads`)."""
+        return call_in_threads(self.functions[self._n_fns * world], states, data,
+                               self._params(params))
+
     def trace(self, world: int, state: np.ndarray, data: np.ndarray,
               params: np.ndarray | None = None):
         """``(state', stats, X, U, Urows, Uerr, Qd)`` of one cycle."""
@@ -502,7 +509,20 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         data = engine.data(theta)
         state0 = engine.state(theta, q, v, theta_m if Pm else None)
         params = engine.world_params(plant)
-        state, stats = engine.cycle(0, state0, data, params)
+        return outcome(theta, q, v, plant, theta_m, state0, data, params,
+                       *engine.cycle(0, state0, data, params))
+
+    def many(theta, X: list[np.ndarray], plant, theta_m=None) -> list[CycleOutcome]:
+        """:func:`run` from each state ``x = (q, v)`` of ``X`` (e.g. a Jacobian's
+        perturbations), the cycles in parallel (:meth:`CompiledEngine.cycles`)."""
+        data, params = engine.data(theta), engine.world_params(plant)
+        states0 = [engine.state(theta, x[:nv], x[nv:], theta_m if Pm else None) for x in X]
+        return [outcome(theta, x[:nv], x[nv:], plant, theta_m, state0, data, params, *res)
+                for x, state0, res in zip(X, states0, engine.cycles(0, states0, data, params),
+                                          strict=True)]
+
+    def outcome(theta, q, v, plant, theta_m, state0, data, params, state, stats
+                ) -> CycleOutcome:
         if stats[k] != 0:  # stopped: the Python engine's outcome of this very cycle
             return hybrid_cycle(exp, theta, q, v, plant, theta_m=theta_m)
         m = int(round(stats[k + 1]))
@@ -536,6 +556,7 @@ def _physical_runner(exp: Experiment, engine: CompiledEngine):
         out.contact = contact
         return out
 
+    run.many = many
     return run
 
 

@@ -178,6 +178,7 @@ class PhysicalGraph:
         checks = ca.vertcat(stop, st["min_fn"], st["max_ratio"], st["min_clear"])
         impact, length, ratio, lost = ca.MX(0), ca.MX(0), ca.MX(-np.inf), ca.MX(0)
         h = stp.dt / stp.substeps
+        elapsed = ca.MX(stp.dt)  # the control step's time in [s]: a touchdown ends it
         sub, td = self.stp.substep(), self.stp.touchdown()
         branch_fn = self._touchdown_switch(td)
         for i_sub in range(stp.substeps):
@@ -194,6 +195,7 @@ class PhysicalGraph:
             ratio = ca.if_else(land, branch[2 * nv + 4], ratio)
             lost = ca.if_else(land, branch[2 * nv + 5], lost)
             length = ca.if_else(land, branch[2 * nv + 6], length)
+            elapsed = ca.if_else(land, i_sub * h + branch[2 * nv + 7], elapsed)
             impact = ca.fmax(impact, land)
         n_imp = st["n_imp"] + impact
         stop = checks[0]
@@ -209,7 +211,7 @@ class PhysicalGraph:
                "max_imp_ratio": ca.if_else(impact, ca.fmax(st["max_imp_ratio"], ratio),
                                            st["max_imp_ratio"]),
                "energy": st["energy"] + impact * lost, "length": st["length"] + impact * length,
-               "hits": hits}
+               "time": st["time"] + elapsed, "hits": hits}
         E = Uerr + inert if self.inverse_dynamics else Uerr
         new["grad"], new["hess"] = self._fel_sums(st, qd, vd, ad, label, A, E, jj, srows,
                                                   design)
@@ -314,18 +316,19 @@ class PhysicalGraph:
 
     def _touchdown_switch(self, td: ca.Function) -> ca.Function:
         """``(land, q, v, tau, h, anchor, checks, q1, v1, checks1) -> branch``: the
-        touchdown's state, checks, impulse ratio, energy lost and step length when ``land``,
-        else the sub-step's state and checks (only the chosen branch is evaluated)."""
+        touchdown's state, checks, impulse ratio, energy lost, step length and time in the
+        sub-step when ``land``, else the sub-step's state and checks (only the chosen branch is
+        evaluated)."""
         nv = self.nv
         args = [ca.MX.sym(n, sz) for n, sz in (("q", nv), ("v", nv), ("tau", nv), ("h", 1),
                                                ("anchor", 2), ("checks", 4), ("q1", nv),
                                                ("v1", nv), ("checks1", 4),
                                                ("w", self.kin.n_world))]
         q, v, tau, h, anchor, checks, q1, v1, checks1, w = args
-        no = ca.Function("no_touchdown", args, [ca.vertcat(q1, v1, checks1, -np.inf, 0, 0)])
-        qn, vn, checks_td, ratio, lost, length = td(q, v, tau, h, anchor, checks1, w)
+        no = ca.Function("no_touchdown", args, [ca.vertcat(q1, v1, checks1, -np.inf, 0, 0, h)])
+        qn, vn, checks_td, ratio, lost, length, s = td(q, v, tau, h, anchor, checks1, w)
         yes = ca.Function("touchdown_branch", args,
-                          [ca.vertcat(qn, vn, checks_td, ratio, lost, length)])
+                          [ca.vertcat(qn, vn, checks_td, ratio, lost, length, s)])
         switch = ca.Function.conditional("touchdown_switch", [no], yes)
         land = ca.MX.sym("land")
         return ca.Function("touchdown_or_not", [land, *args], [switch(land, *args)])
@@ -423,7 +426,7 @@ def physical_cycle_function(exp, plant=None, full: bool = False, name: str = "ph
     phase_bad = ca.mmax(ca.if_else(inside, (G[0, 1:] - G[0, :n - 1]) <= 0, 0))
     consts = ca.vertcat(*[ca.vec(M) for M in (P, Pv, Pa, *R)], *[G[c, :].T for c in range(3)])
     S0 = ca.vertcat(x0, 0, 0, ca.if_else(phase_bad, stop_code("phase"), 0), 0, np.inf, 0, np.inf,
-                    -np.inf, 0, 0, ca.DM.zeros(k), ca.DM.zeros(g.sizes["grad"]),
+                    -np.inf, 0, 0, 0, ca.DM.zeros(k), ca.DM.zeros(g.sizes["grad"]),
                     ca.DM.zeros(g.sizes["hess"]))
     srows = ca.vertcat(*[ca.vec(sens[l][c].T) for l in range(L) for c in range(3)]) if L \
         else ca.MX.zeros(0)
@@ -468,7 +471,7 @@ def physical_cycle_function(exp, plant=None, full: bool = False, name: str = "ph
                ca.if_else(st["min_clear"] < np.inf, st["min_clear"], nan),
                ca.if_else(n_steps > 0, st["max_imp_ratio"], nan), st["energy"],
                ca.if_else(n_steps > 0, st["length"] / n_steps, nan), st["length"], n_steps,
-               m * stp.dt, st["work"], stab_rms]
+               st["time"], st["work"], stab_rms]
     stats += [stop, m, *steps_at, *lengths, *contact]
     theta_m_next = theta_m
     if Pm:  # the model correction's and biases' Levenberg-Marquardt step

@@ -281,7 +281,7 @@ class Step:
         nv, k = self.nv, self.k
         return {"q": nv, "v": nv, "n_imp": 1, "phase_acc": 1, "stop": 1, "done": 1,
                 "min_fn": 1, "max_ratio": 1, "min_clear": 1, "max_imp_ratio": 1, "energy": 1,
-                "length": 1, "hits": k}
+                "length": 1, "time": 1, "hits": k}
 
     def substep(self) -> ca.Function:
         """One sub-step without a touchdown's branch: ``(q, v, tau, h, st, a1, F, w) -> (q1,
@@ -323,7 +323,8 @@ class Step:
 
     def touchdown(self) -> ca.Function:
         """The touchdown inside a sub-step (MX): ``(q, v, tau, h, anchor, st, w) -> (qn, vn, st,
-        impulse_ratio, energy_lost, length)``; the bisection calls the Runge-Kutta step."""
+        impulse_ratio, energy_lost, length, s)``, ``s`` the touchdown's time in the sub-step in
+        [s]; the bisection calls the Runge-Kutta step."""
         kin, W = self.kin, self.kin.W
         chk = W.checks
         nv = self.nv
@@ -359,7 +360,7 @@ class Step:
         qn = qn - p[0] * ca.DM([1.0 if i == kin.bq0 else 0.0 for i in range(nv)])
         return ca.Function("touchdown", [q, v, tau, h, anchor, st, w],
                            [qn, vn, ca.vertcat(stop, min_fn, max_ratio, min_clear), ratio, lost,
-                            length])
+                            length, s])
 
 
 def _interp_index(xc, x, ns):
