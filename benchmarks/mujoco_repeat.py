@@ -4,10 +4,10 @@ FEL learns a periodic feedforward: a function of the phase, the same in every cy
 cancel only the part of the feedback that repeats. Each MuJoCo walker is run from its designed
 gait for ``--cycles`` cycles twice, seed 0: with the designed feedforward held (nothing learned)
 and learning from it (every motor and the torso, the *designed* start of
-``benchmarks/walk_mujoco.py``). Over the last ``--last`` cycles each
-cycle's feedback is aligned at its touchdowns (step by step, cut to the shortest step) and split
-into its mean over those cycles (the repeating part, what a periodic feedforward could cancel) and
-the rest (what differs from cycle to cycle). Printed per walker, in [N m] (the mean |feedback| per
+``benchmarks/walk_mujoco.py``). Over the last ``--last`` cycles each cycle's feedback is aligned
+at its touchdowns (step by step, cut to the shortest step) and split into its mean over those
+cycles (the repeating part, what a periodic feedforward could cancel) and the rest (what differs
+from cycle to cycle). Printed per walker, in [N m] (the mean |feedback| per
 control step, summed over the joints): cycle 1's feedback and the acceptance bound (0.15 of it),
 the last cycles' feedback, its repeating and non-repeating parts, and the control steps at which
 the last cycles' touchdowns came. Pinocchio's rigid five-link walker is the contrast: its walk
@@ -52,15 +52,12 @@ def one(job: tuple[str, str, int, int]) -> dict:
     name, start, cycles, last = job
     config = ROOT / "configs" / "gaits" / f"{name}.yaml"
     exp = load_experiment(config, overrides(config, start) + ["backend=pinocchio"])
-    first: list[float] = []
     kept: list[list[np.ndarray]] = []
     touchdowns: set[tuple[int, ...]] = set()
 
     def on_cycle(cycle, log, Qd, fb):
-        at = [k for k, _, _ in log.impacts]
-        if not first:
-            first.append(summed(log.u_fb))
         if cycle > cycles - last:
+            at = [k for k, _, _ in log.impacts]
             bounds = [0] + at
             kept.append([log.u_fb[a:b] for a, b in zip(bounds[:-1], bounds[1:])])
             touchdowns.add(tuple(at))
@@ -74,8 +71,8 @@ def one(job: tuple[str, str, int, int]) -> dict:
     n = [min(len(c[s]) for c in kept) for s in range(len(kept[0]))]
     F = np.stack([np.vstack([c[s][:n[s]] for s in range(len(n))]) for c in kept])
     repeating = F.mean(axis=0)
-    return row | {"first": first[0], "last": summed(F), "repeating": summed(repeating),
-                  "non_repeating": summed(F - repeating), "touchdowns": sorted(touchdowns)}
+    return row | {"first": res.rows[0]["fb_abs_mean_error"], "last": summed(F),
+                  "repeating": summed(repeating), "non_repeating": summed(F - repeating), "touchdowns": sorted(touchdowns)}
 
 
 def main() -> None:
