@@ -72,7 +72,8 @@ def one(job: tuple[str, str, int, int]) -> dict:
     F = np.stack([np.vstack([c[s][:n[s]] for s in range(len(n))]) for c in kept])
     repeating = F.mean(axis=0)
     return row | {"first": res.rows[0]["fb_abs_mean_error"], "last": summed(F),
-                  "repeating": summed(repeating), "non_repeating": summed(F - repeating), "touchdowns": sorted(touchdowns)}
+                  "repeating": summed(repeating), "non_repeating": summed(F - repeating),
+                  "touchdowns": sorted(touchdowns)}
 
 
 def main() -> None:
