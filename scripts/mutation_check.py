@@ -59,9 +59,16 @@ FAULTS = (
                                    "a, b = joints.index(w.swap[0]), joints.index(w.swap[1]) + 1"),),
           ("tests/test_biped.py",)),
     Fault("wrong_basis_width", "the von Mises width defaults to h = N instead of N / 2",
-          (("feltool/motion/rmp.py", "self.width = float(n_basis / 2.0 if width is None else width)",
+          (("feltool/motion/rmp.py",
+            "self.width = float(spectral.default_width(n_basis) if width is None else width)",
             "self.width = float(n_basis if width is None else width)"),),
           ("tests/test_rmp.py", "tests/test_mismatch.py")),
+    Fault("width_ignores_alias", "the default width is N / 2 at every N, also where it aliases the "
+          "first harmonic (five functions learn 1.7-2.4x slower)",
+          (("feltool/motion/spectral.py",
+            "if n_basis <= 2 or basis_alias(n_basis, half) <= ALIAS:",
+            "if True:"),),
+          ("tests/test_rmp.py",)),
     Fault("correction_on_every_joint", "the model correction also drives joints outside its error "
           "mask (the cause of the diverging mismatch seeds)",
           (("feltool/learning/model.py", "return (Phi @ theta_m) * self.error_mask",

@@ -208,11 +208,12 @@ def test_the_random_start_is_one_trajectory_at_any_basis_size(n_basis):
         assert np.sqrt(np.mean((q2 - q0) ** 2)) > 0.02
 
 
-@pytest.mark.parametrize("n_basis,rate_hz", [(20, 100), (40, 200)])
-def test_more_basis_functions_learn_the_same_curve(n_basis, rate_hz):
+@pytest.mark.parametrize("n_basis,rate_hz", [(5, 100), (20, 100), (40, 200)])
+def test_other_basis_sizes_learn_the_same_curve(n_basis, rate_hz):
     """Cycles-to-5 % within +-2 cycles of the shipped basis 10, every one of seeds 0-4 (40
     basis functions reach harmonic 44 of the cycle: at 100 Hz their learning is not stable,
-    docs/results.md, so 200 Hz)."""
+    docs/results.md, so 200 Hz; 5 functions at their default width, which keeps harmonic 4
+    from coming with the first: at h = N / 2 seed 6 of 0-19 took 42 cycles)."""
     ship = load_experiment(STANDARD)
     more = load_experiment(STANDARD, [f"primitives.basis={n_basis}", f"sim.rate_hz={rate_hz}"])
     a = [run_seed(ship, s, 30).summary["converged_cycle"] for s in SEEDS]

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.integrate import quad
 
 from feltool.errors import InputError
 from feltool.motion.rmp import RhythmicPrimitive, sine_demo
+from feltool.motion.spectral import default_width
 
 
 def fitted_sine(n_basis=10, dt=0.01, period=1.0):
@@ -85,6 +87,42 @@ def test_step_sensitivity_matches_finite_differences(rng):
         e[p] = eps
         fd = (roll(theta + e)[0] - roll(theta - e)[0]) / (2 * eps)
         np.testing.assert_allclose(fd, S[:, p], atol=1e-8)
+
+
+@pytest.mark.parametrize("n_basis", range(3, 13))
+def test_the_default_width_keeps_the_first_harmonics_alias_small(n_basis):
+    """With N equally spaced centres, the weights that make cos(phi) make harmonic N - 1 too,
+    in the ratio of the basis function's Fourier coefficients a_{N-1} / a_1 (here by scipy's
+    quadrature of exp(h (cos phi - 1)) cos(m phi)). The default width holds that ratio at or
+    below 1 %, is N / 2 wherever N / 2 already does (N >= 7: the shipped configs' basis), and
+    not below 0.5 (N = 3, 4)."""
+    h = default_width(n_basis)
+
+    def coefficient(m):
+        return quad(lambda p: np.exp(h * (np.cos(p) - 1.0)), 0, np.pi, weight="cos", wvar=m,
+                    epsabs=0.0, epsrel=1e-10, limit=200)[0]
+
+    alias = coefficient(n_basis - 1) / coefficient(1)
+    assert alias <= 1e-2 * (1 + 1e-6) or h == 0.5
+    assert (h == n_basis / 2) == (n_basis >= 7)
+    assert 0.5 <= h <= n_basis / 2
+    if 0.5 < h < n_basis / 2:  # the widest width meeting the bound, not any width below it
+        assert alias == pytest.approx(1e-2, rel=1e-6)
+
+
+def test_five_functions_fit_a_sine_to_a_percent_at_the_default_width():
+    """A 1 Hz sine through eq. 2.2's limit cycle, fitted by least squares: at N = 5 the default
+    width leaves about 1 % (its alias), N / 2 = 2.5 left 5 % -- a floor learning cannot pass."""
+    t = np.linspace(0, 1.0, 500, endpoint=False)
+    q, _, _ = sine_demo(0.0, 1.0, 1.0, 0.0, t)
+
+    def residual(prim):
+        Yq, _, _ = prim.limit_cycle(2 * np.pi * t)
+        theta = np.linalg.lstsq(Yq, q, rcond=None)[0]
+        return np.sqrt(np.mean((Yq @ theta - q) ** 2)) / np.sqrt(np.mean(q ** 2))
+
+    assert residual(RhythmicPrimitive(5, 1.0, 0.01)) < 0.012
+    assert residual(RhythmicPrimitive(5, 1.0, 0.01, width=2.5)) > 0.045
 
 
 def test_basis_is_von_mises():

@@ -80,7 +80,9 @@ class PrimitiveConfig(Strict):
                                          "[-]; default alpha_z / 4 (critically damped); at most "
                                          f"{MAX_ALPHA:g}.")
     width: PositiveFloat | None = Field(None, le=MAX_WIDTH, description="Width h of the von "
-                                        f"Mises basis [-]; default N / 2; at most {MAX_WIDTH:g}.")
+                                        "Mises basis [-]; default N / 2, smaller where N / 2 would "
+                                        "alias the first harmonic by more than 1 % (N = 5: 1.29, "
+                                        f"N = 6: 2.31); at most {MAX_WIDTH:g}.")
     amplitude: PositiveFloat = Field(1.0, le=MAX_AMPLITUDE, description="Amplitude factor r of "
                                      f"the forcing term [-]; at most {MAX_AMPLITUDE:g}.")
     phase: Literal["clock", "mechanical", "adaptive"] = Field("clock", description="The phase "

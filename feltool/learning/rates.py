@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from feltool.motion.spectral import default_width
+
 #: Phase samples of one revolution on which :func:`basis_gain` averages (independent of the
 #: control rate: the basis is a function of the phase).
 GAIN_SAMPLES = 2048
@@ -70,7 +72,7 @@ def translate(per_sample_weights: float, per_sample_goal: float, period_s: float
     """Old per-sample rates (the sums of eq. 3.6 as the thesis wrote them) as the rates of
     this module that give the very same step: ``(weights * N * kappa_0, goal * N)``."""
     n = samples_per_cycle(period_s, rate_hz)
-    kappa = basis_gain(n_basis, n_basis / 2.0 if width is None else width, amplitude)
+    kappa = basis_gain(n_basis, default_width(n_basis) if width is None else width, amplitude)
     return per_sample_weights * n * kappa, per_sample_goal * n
 
 

@@ -99,7 +99,8 @@ class RhythmicPrimitive:
         dt: Control (sampling) step of the nominal clock in [s].
         alpha_z: Timing constant :math:`\\alpha_z` (thesis: 25).
         beta_z: Timing constant :math:`\\beta_z`; default :math:`\\alpha_z / 4` (critical damping).
-        width: Basis width h; default N/2 (h = N leaves ripple in :math:`\\ddot q` at T = 1 s).
+        width: Basis width h; default :func:`feltool.motion.spectral.default_width` (N/2 from
+            N = 7 on; h = N leaves ripple in :math:`\\ddot q` at T = 1 s).
         amplitude: Amplitude factor r of the forcing term (eq. 2.2).
     """
 
@@ -116,7 +117,7 @@ class RhythmicPrimitive:
         self.omega = 2.0 * np.pi / period_s
         self.alpha_z = float(alpha_z)
         self.beta_z = float(alpha_z / 4.0 if beta_z is None else beta_z)
-        self.width = float(n_basis / 2.0 if width is None else width)
+        self.width = float(spectral.default_width(n_basis) if width is None else width)
         self.amplitude = float(amplitude)
         self.centers = 2.0 * np.pi * np.arange(self.n_basis) / self.n_basis
         self.n_params = self.n_basis + 1  # weights, then the goal

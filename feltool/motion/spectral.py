@@ -15,10 +15,15 @@ Coefficient matrices (one column per parameter) work the same way.
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import brentq
 from scipy.special import ive
 
 #: Harmonics whose von Mises coefficient is below this fraction of the mean are dropped.
 TAIL = 1e-17
+#: The default width keeps the first harmonic's alias (harmonic N - 1) below this fraction of it.
+ALIAS = 1e-2
+#: The default width is at least this [-]: a basis function falls to 1/e at the opposite phase.
+MIN_DEFAULT_WIDTH = 0.5
 
 
 def degree(coefficients: np.ndarray) -> int:
@@ -84,6 +89,32 @@ def von_mises_harmonics(width: float) -> int:
     return int(np.argmax(small)) if small.any() else len(m)
 
 
+def basis_alias(n_basis: int, width: float) -> float:
+    """How much harmonic N - 1 comes with the first harmonic [-]: with N equally spaced centres
+    the weights that make :math:`\\cos\\phi` from the basis make :math:`\\cos (N-1)\\phi` too,
+    with :math:`I_{N-1}(h)/I_1(h)` of its amplitude (the discrete Fourier transform over the
+    centres folds harmonic m onto m mod N)."""
+    return float(ive(n_basis - 1, width) / ive(1, width))
+
+
+def default_width(n_basis: int) -> float:
+    """The basis width h [-] when none is given: N / 2, or wider where N / 2 aliases.
+
+    N / 2 keeps the q''-ripple of a fit small (docs/theory.md), but with few functions the
+    first harmonic drags its alias along: at N = 5 and h = 2.5 harmonic 4 at 5.5 % of it, a
+    floor no learning gets below (a sine fitted by the RMP to 5 % RMS). The default is the
+    largest h <= N / 2 with :func:`basis_alias` at most :data:`ALIAS`, and at least
+    :data:`MIN_DEFAULT_WIDTH` (below it the functions barely differ and their weights grow as
+    1/h). N >= 7 keeps N / 2; N <= 2 has no alias to keep down (N / 2)."""
+    half = n_basis / 2.0
+    if n_basis <= 2 or basis_alias(n_basis, half) <= ALIAS:
+        return half
+    if basis_alias(n_basis, MIN_DEFAULT_WIDTH) >= ALIAS:
+        return MIN_DEFAULT_WIDTH
+    return float(brentq(lambda h: basis_alias(n_basis, h) - ALIAS, MIN_DEFAULT_WIDTH, half,
+                        xtol=1e-12))
+
+
 def von_mises(width: float, centers: np.ndarray, M: int) -> np.ndarray:
     """``(2M + 1, N)``: the series of :math:`\\psi_i(\\phi) = \\exp(h(\\cos(\\phi - c_i) - 1))`
     (Jacobi-Anger: :math:`e^{h\\cos x} = I_0(h) + 2\\sum_m I_m(h)\\cos mx`)."""
@@ -93,5 +124,5 @@ def von_mises(width: float, centers: np.ndarray, M: int) -> np.ndarray:
                            amp * np.cos(m * centers), amp * np.sin(m * centers)])
 
 
-__all__ = ["degree", "differentiate", "from_samples", "pad", "parseval_rows", "trig",
-           "von_mises", "von_mises_harmonics"]
+__all__ = ["basis_alias", "default_width", "degree", "differentiate", "from_samples", "pad",
+           "parseval_rows", "trig", "von_mises", "von_mises_harmonics"]
