@@ -68,16 +68,26 @@ def test_fel_learns_from_the_noisy_measurements_and_the_model_never_sees_them():
     derivs = known.inner.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
     J = exp.learner.jacobian(known.inner, theta, Qd, Vd, Ad, derivs)
 
-    def step(E):
-        return exp.learner.closed_loop_step(theta, J, derivs, E, Qd, None)
+    def step(E, dx):
+        return exp.learner.closed_loop_step(theta, J, derivs, E, Qd, None, dx)
 
     E_true = np.zeros_like(log.u_err)
     E_true[:, 1] = e_true
-    np.testing.assert_allclose(out.theta_next, step(log.u_err), atol=1e-10)
-    assert not np.allclose(out.theta_next, step(E_true), atol=1e-6)
-    # The known model was only asked about the desired trajectory, and never simulated.
-    assert known.calls and all(name.startswith("inverse") for name, _ in known.calls)
-    for _, args in known.calls:
+    # ... and the measured change of state over the cycle (for its start's transient)
+    dx = log.measured_change(known.inner)
+    dx_true = np.concatenate([log.q_end - log.q_true[0], log.v_end - log.v_true[0]])
+    assert np.abs(dx[2:] - dx_true[2:]).max() > 0.05  # the velocities' noise, 0.1 rad/s
+    np.testing.assert_allclose(out.theta_next, step(log.u_err, dx), atol=1e-10)
+    assert not np.allclose(out.theta_next, step(E_true, dx), atol=1e-6)
+    assert not np.allclose(out.theta_next, step(log.u_err, dx_true), atol=1e-6)
+    # The known model was only asked about the desired trajectory (and the measured states'
+    # difference), and never simulated.
+    inverse = [args for name, args in known.calls if name.startswith("inverse")]
+    assert inverse and [name for name, _ in known.calls if name not in (
+        "inverse_batch", "inverse_derivatives_batch")] == ["difference"]
+    diff = next(args for name, args in known.calls if name == "difference")
+    np.testing.assert_array_equal(diff[0], log.q[0])  # measured, not true
+    for args in inverse:
         np.testing.assert_array_equal(args[0], Qd)
         np.testing.assert_array_equal(args[1], Vd)
         np.testing.assert_array_equal(args[2], Ad)

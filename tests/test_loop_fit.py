@@ -12,7 +12,7 @@ import pytest
 
 from feltool.engines.compiled.graph import layout, symbolic_frames
 from feltool.engines.compiled.loop_fit import closed_loop_step
-from feltool.learning.loop_map import apply_q, error_sensitivity, feedback_gains, q_filter
+from feltool.learning.loop_map import apply_q, error_sensitivity, feedback_gains, q_filter, transient_error
 from feltool.runs.experiments import load_experiment
 from feltool.runs.seed import run_seed
 
@@ -82,9 +82,10 @@ def test_the_lifted_map_is_the_closed_loop_s_finite_differences(config, sets, le
 
 @pytest.mark.parametrize("config", [STANDARD, UR5])
 def test_the_compiled_graph_takes_the_python_engine_s_step(config):
-    """One closed-loop step from the same parameters and error torques: the CasADi graph's
-    expressions (feltool.engines.compiled.loop_fit) and numpy's (FeedbackErrorLearner.
-    closed_loop_step) agree to rounding."""
+    """One closed-loop step from the same parameters, error torques and change of state over
+    the cycle: the CasADi graph's expressions (feltool.engines.compiled.loop_fit) and numpy's
+    (FeedbackErrorLearner.closed_loop_step) agree to rounding, and the change of state moves
+    the step (the start's transient is taken out of the error)."""
     exp = load_experiment(config, ["backend=pinocchio"])
     L = exp.learner
     assert L.fit == "closed_loop"
@@ -93,16 +94,73 @@ def test_the_compiled_graph_takes_the_python_engine_s_step(config):
     E = np.random.default_rng(1).normal(size=Qd.shape) * L.error_mask
     _, *der = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
     J = L.jacobian(exp.dynamics, theta, Qd, Vd, Ad, tuple(der))
-    python = L.closed_loop_step(theta, J, tuple(der), E, Qd)[L.learned]
+    dx = np.random.default_rng(2).normal(size=2 * exp.robot.model.nv) * 0.1  # a start's offset
+    python = L.closed_loop_step(theta, J, tuple(der), E, Qd, None, dx)[L.learned]
     sens = [[ca.DM(x) for x in X] for X in L.learned_sensitivities()]
     graph = closed_loop_step(exp, layout(exp), ca.DM(theta[L.learned]), sens,
                              tuple(ca.DM(X.T) for X in (Qd, Vd, Ad)), ca.DM(exp.law.kp),
                              ca.DM(exp.law.kd), ca.DM(E.T), ca.DM(L.rates), L.damping,
-                             ca.DM(L.gradient(J, E)), symbolic_frames(exp.law, exp.robot.model))
+                             ca.DM(L.gradient(J, E)), symbolic_frames(exp.law, exp.robot.model),
+                             None, ca.DM(dx))
     graph = np.array(ca.evalf(graph)).ravel()
     step = python - theta[L.learned]
     assert np.abs(step).max() > 1e-2
     np.testing.assert_allclose(graph, python, rtol=0, atol=1e-10 * np.abs(step).max())
+    as_is = L.closed_loop_step(theta, J, tuple(der), E, Qd)[L.learned]
+    assert np.abs(as_is - python).max() > 1e-3 * np.abs(step).max()
+
+
+@pytest.mark.parametrize("config", [STANDARD, UR5])  # a link angle's error signal, a frame's
+def test_the_transient_of_a_start_off_the_periodic_state_is_the_loop_s(config):
+    """transient_error against the nonlinear loop itself, at period 0.5 s: from its periodic
+    state (the loop run to its steady cycle at fixed parameters) offset by a small random
+    state, one cycle's error feedback minus the periodic cycle's, predicted from that cycle's
+    change of state alone. Linearized along the simulated periodic cycle (its accelerations
+    from the semi-implicit Euler step, v+ = v + dt a) the prediction is the loop's to 1e-3 (the
+    offset's second order); along the desired trajectory, as the learning step has it, to
+    12 % (standard arm, 0.1 rad from it) and 4 % (UR5)."""
+    exp = load_experiment(config, ["period_s=0.5", "backend=pinocchio"])
+    L = exp.learner
+    theta = _theta_after(exp, 0, 10)
+    Qd, Vd, Ad = exp.primitives.desired(theta)
+    R, Rd = exp.law.references(Qd, Vd)
+    u_ff = exp.dynamics.inverse_batch(Qd, Vd, Ad)
+    q, v = exp.law.consistent_state(Qd[0], Vd[0])
+    for _ in range(200):
+        log = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+        q, v = log.q_end, log.v_end
+    periodic = exp.loop.run_cycle(q, v, R, Rd, u_ff)
+    assert np.abs(periodic.v_end - v).max() < 1e-9
+    nv = exp.robot.model.nv
+    offset = np.random.default_rng(3).normal(size=2 * nv) * 1e-4
+    log = exp.loop.run_cycle(q + offset[:nv], v + offset[nv:], R, Rd, u_ff)
+    measured = log.u_err - periodic.u_err
+    assert np.abs(measured).max() > 1e-4  # (the offset's feedback is there to predict)
+    Qs, Vs = periodic.q, periodic.v
+    As = np.diff(np.vstack([Vs, periodic.v_end]), axis=0) / exp.loop.dt
+    for Q, V, A, tol in ((Qs, Vs, As, 1e-3), (Qd, Vd, Ad, 0.15)):
+        _, *der = exp.dynamics.inverse_derivatives_batch(Q, V, A)
+        predicted = transient_error(tuple(der), feedback_gains(exp.law, Q, L.error_mask),
+                                    exp.loop.actuated, exp.loop.dt,
+                                    log.measured_change(exp.dynamics))
+        rel = np.abs(predicted - measured).max() / np.abs(measured).max()
+        assert rel < tol, (rel, tol)
+
+
+def test_the_transient_s_removal_learns_a_fast_period_as_fast_as_the_shipped_one():
+    """The standard arm at period 0.5 s (its loop forgets only part of a start within a
+    cycle), compiled engine, seeds 0-9: with learning.remove_transient (default) each seed is
+    below 5 % within 5 cycles (measured 3-4; the shipped 1 s: 3); fitting the step to the error
+    as measured, the transient of the step before counted as if it repeated, takes 5-21
+    (mean 8.6)."""
+    seeds = range(10)
+    on = load_experiment(STANDARD, ["period_s=0.5", "backend=compiled"])
+    off = load_experiment(STANDARD, ["period_s=0.5", "backend=compiled",
+                                     "learning.remove_transient=false"])
+    with_removal = [run_seed(on, s, 40).summary["converged_cycle"] for s in seeds]
+    without = [run_seed(off, s, 40).summary["converged_cycle"] for s in seeds]
+    assert None not in with_removal and max(with_removal) <= 5, with_removal
+    assert None not in without and np.mean(without) > 1.5 * np.mean(with_removal), without
 
 
 @pytest.mark.parametrize("config, sets", [(UR5, []), (STANDARD, ["period_s=1.2345"])])
@@ -156,10 +214,25 @@ def test_a_point_the_feedforward_fit_failed_converges(config, setting, old):
 
 def test_the_q_filter_acts_on_the_learning():
     """The standard arm with 80 basis functions at 100 Hz (Python engine, seeds 0-1): a cutoff
-    of 10 Hz keeps what the task needs (converged in 6 and 6 cycles; without the filter 7 and
-    6); 5 Hz removes harmonics the error has, and the error stays above 5 %."""
+    of 10 Hz keeps what the task needs (converged in 3 and 3 cycles, as without the filter);
+    5 Hz removes harmonics the error has, and the error stays above 5 %."""
     sets = ["primitives.basis=80", "backend=pinocchio"]
     kept = load_experiment(STANDARD, sets + ["learning.q_filter_hz=10"])
     cut = load_experiment(STANDARD, sets + ["learning.q_filter_hz=5"])
-    assert [run_seed(kept, s, 20).summary["converged_cycle"] for s in (0, 1)] == [6, 6]
+    free = load_experiment(STANDARD, sets)
+    kept_cycles = [run_seed(kept, s, 20).summary["converged_cycle"] for s in (0, 1)]
+    assert kept_cycles == [run_seed(free, s, 20).summary["converged_cycle"] for s in (0, 1)]
+    assert max(kept_cycles) <= 4, kept_cycles
     assert run_seed(cut, 0, 20).summary["converged_cycle"] is None
+
+
+def test_the_goal_steps_on_the_error_the_weights_leave():
+    """The human arm at period 0.5 s (6 times its shipped speed), compiled engine, seeds
+    0-9: each seed below 5 % within 5 cycles (measured 3-4; the shipped 3 s: 2-3). The
+    goal's gradient step on all of the error, which the weights' step also takes out (the
+    goal and the weights' mean move the same offset), overshot there: seeds 5 and 12 took 29
+    and 20 cycles, the error rising to 0.6 of the first cycle's on the way (docs/results.md)."""
+    exp = load_experiment(CONFIGS / "two_link_human_arm.yaml",
+                          ["period_s=0.5", "backend=compiled"])
+    cycles = [run_seed(exp, s, 40).summary["converged_cycle"] for s in range(10)]
+    assert None not in cycles and max(cycles) <= 5, cycles

@@ -184,7 +184,7 @@ def test_a_diverging_run_exits_1_and_keeps_its_results(tmp_path):
 
 
 def test_missing_the_success_criterion_exits_1(tmp_path):
-    r = feltool("run", *SHORT, "--set", "success.fb_ratio_max=0.01", "--out",
+    r = feltool("run", *SHORT, "--set", "success.fb_ratio_max=0.001", "--out",
                 str(tmp_path / "s"))
     assert r.returncode == 1, r.stdout + r.stderr
     assert "success.fb_ratio_max" in r.stdout

@@ -175,6 +175,13 @@ class LearningConfig(Strict):
         "fit over one cycle; the parameters' directions that only move higher harmonics are "
         "left to the damping); null (default): every harmonic the closed loop passes. Python "
         "engine only.")
+    remove_transient: bool = Field(True, description="fit: closed_loop: fit the step to the "
+        "periodic part of the cycle's error feedback, without the transient of the cycle "
+        "starting where the one before ended (off the periodic state of the new parameters; "
+        "estimated from the cycle's change of state through the linearized loop, "
+        "feltool.learning.loop_map.transient_error). Matters where the loop does not forget its "
+        "start within a period (period 0.5 s on the standard arm, seeds 0-9: 5-21 cycles to 5 % "
+        "without, 3-4 with); false: the measured error as it is.")
     safeguard: bool = Field(True, description="Undo a learning step that makes the next "
         "cycle's mean error feedback exceed safeguard_growth times that of the cycle whose "
         "update it is, or diverge: the parameters before the step are restored and the step halved (a trust "

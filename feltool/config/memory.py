@@ -50,9 +50,10 @@ def estimate_bytes(cfg: ExperimentConfig, joints: list[str], n_bodies: int) -> i
     if cfg.closed_loop_fit:
         # the closed-loop fit's sensitivities through the loop (feltool.learning.loop_map:
         # per step 2 nv x learned state responses, their forcing and the error rows, and
-        # einsum temporaries), measured: 2550 and 23000 floats per step at 11 and 61 learned
-        # parameters on two joints (tests/test_physical.py)
-        per_sample += 100 * nv * learned + 3 * learned * learned
+        # einsum temporaries; the compiled graph's per-step sums D^T D and, for the goals'
+        # step on what the weights leave, J^T D), measured: 2550 and 32700 floats per step at
+        # 11 and 61 learned parameters on two joints (tests/test_physical.py)
+        per_sample += 100 * nv * learned + 5 * learned * learned
     compiled = 0
     if cfg.backend in ("auto", "compiled"):
         # the compiled engine's cycle data (each learned row twice, in three copies while

@@ -36,6 +36,8 @@ class CycleLog:
         u_rows: Each controller's own output, ``(n, nv)`` (equals ``u_fb`` for linear laws).
         u_err: The learning signal: joint torques of the error controllers, ``(n, nv)``.
         limit_hits: Steps per joint beyond a position limit and beyond a torque limit.
+        end_measured: The state after the last step as the controller measures it ``(q, v)``
+            (a noisy loop's, :mod:`feltool.plant.disturbances`); None: ``(q_end, v_end)``.
     """
 
     q: np.ndarray
@@ -46,6 +48,13 @@ class CycleLog:
     u_rows: np.ndarray | None = None
     u_err: np.ndarray | None = None
     limit_hits: tuple[np.ndarray, np.ndarray] | None = None
+    end_measured: tuple[np.ndarray, np.ndarray] | None = None
+
+    def measured_change(self, dynamics: Dynamics) -> np.ndarray:
+        """``(2nv,)``: the tangent change of the measured state over the cycle, from its first
+        step's start to its end."""
+        q_end, v_end = self.end_measured or (self.q_end, self.v_end)
+        return np.concatenate([dynamics.difference(self.q[0], q_end), v_end - self.v[0]])
 
 
 @dataclass

@@ -125,6 +125,13 @@ class CasadiDynamics:
             return q + dq
         return np.array(pin.integrate(self.model, q, dq), dtype=float)
 
+    def difference(self, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+        """The tangent displacement from ``q0`` to ``q1`` (Pinocchio's ``difference``)."""
+        q0, q1 = np.asarray(q0, dtype=float), np.asarray(q1, dtype=float)
+        if self.euclidean:
+            return q1 - q0
+        return np.array(pin.difference(self.model, q0, q1), dtype=float)
+
 
 def call_in_threads(fn: ca.Function, firsts: list[np.ndarray], *rest: np.ndarray) -> list:
     """``fn(first, *rest)`` for each of ``firsts``, on every CPU this process may use: threads,

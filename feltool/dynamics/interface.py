@@ -46,6 +46,9 @@ class Dynamics(Protocol):
     def integrate(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """Configuration reached from ``q`` by the displacement ``dq`` (tangent vector)."""
 
+    def difference(self, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+        """The tangent displacement ``dq`` that :meth:`integrate` takes from ``q0`` to ``q1``."""
+
 
 def make_dynamics(model: pin.Model, backend: str = "pinocchio") -> Dynamics:
     """The known model of ``model`` in the named backend."""

@@ -89,6 +89,11 @@ class PinocchioDynamics:
             return q + dq
         return pin.integrate(self.model, q, dq)
 
+    def difference(self, q0, q1):
+        if self.euclidean:
+            return q1 - q0
+        return pin.difference(self.model, q0, q1)
+
 
 _EUCLIDEAN_JOINTS = {
     "JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",

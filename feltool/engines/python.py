@@ -58,7 +58,8 @@ def per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop,
                 derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
             J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs, cycle=cycle,
                                      transients=motion.transients if motion is not None else None)
-            theta_next = exp.learner.closed_loop_step(theta, J, derivs, log.u_err, Qd, cycle)
+            theta_next = exp.learner.closed_loop_step(theta, J, derivs, log.u_err, Qd, cycle,
+                                                      log.measured_change(exp.dynamics))
         elif derivs is not None:  # exact: the sums of eq. 3.6 without forming J
             theta_next = exp.learner.update_from_derivatives(theta, derivs, log.u_err, weight,
                                                              cycle)

@@ -398,7 +398,7 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
         learner.loop = {"law": law, "S": np.asarray(actuated, float), "dt": dt,
                         "substeps": cfg.sim.substeps,
                         "semi_implicit": cfg.sim.integrator == "semi_implicit_euler",
-                        "q_filter_hz": L.q_filter_hz}
+                        "q_filter_hz": L.q_filter_hz, "remove_transient": L.remove_transient}
     if L.sensitivity == "casadi" and learner.n_learned:
         learner.set_casadi_jacobian(CasadiJacobian(robot.model, primitives, learner.learned))
     return exp

@@ -30,7 +30,7 @@ import numpy as np
 from feltool.control.cycle import fel_sums, fel_update
 from feltool.control.ops import NUMPY
 from feltool.dynamics.interface import Dynamics
-from feltool.learning.loop_map import apply_q, error_sensitivity, feedback_gains, q_filter
+from feltool.learning.loop_map import apply_q, error_sensitivity, feedback_gains, q_filter, transient_error
 from feltool.motion.phase import PhaseSamples
 from feltool.motion.rmp import PrimitiveSet
 
@@ -146,12 +146,17 @@ class FeedbackErrorLearner:
 
     def closed_loop_step(self, theta: np.ndarray, J: np.ndarray, derivatives: tuple,
                          E: np.ndarray, Qd: np.ndarray,
-                         cycle: PhaseSamples | None = None) -> np.ndarray:
+                         cycle: PhaseSamples | None = None,
+                         dx: np.ndarray | None = None) -> np.ndarray:
         """The Gauss-Newton step through the closed loop (``learning.fit: closed_loop``,
         :mod:`feltool.learning.loop_map`): the weights' step fits :math:`Q D\\Delta w` to
         :math:`Q e`, :math:`D` the lifted closed-loop map times ``J`` along the desired
         trajectory (``derivatives``: the inverse model's ``(Dq, Dv, M)`` there); the goals keep
-        the gradient step of :meth:`step`."""
+        the gradient step of :meth:`step` on the error the weights' step is predicted to
+        leave, :math:`e - D\\Delta w` (a goal and the weights' mean move the same offset: on
+        all of :math:`e` both would take it out). ``dx`` ``(2nv,)``: the state's tangent change
+        over the cycle; with ``loop["remove_transient"]`` the fit is to the error without the
+        transient of the cycle's start (:func:`~feltool.learning.loop_map.transient_error`)."""
         if self.n_learned == 0:
             return theta.copy()
         L = self.loop
@@ -168,14 +173,20 @@ class FeedbackErrorLearner:
         gains = feedback_gains(law, Qd, self.error_mask)
         D = error_sensitivity(derivatives, J, gains, L["S"], L["dt"], Bref, True,
                               L.get("substeps", 1), L.get("semi_implicit", True))
+        if dx is not None and L.get("remove_transient"):
+            E = E - transient_error(derivatives, gains, L["S"], L["dt"], dx,
+                                    L.get("substeps", 1), L.get("semi_implicit", True))
         keep = q_filter(n, n * L["dt"], L.get("q_filter_hz"))
         Dq, Eq = apply_q(D, keep), apply_q(E, keep)
         hess = np.einsum("krp,krs->ps", Dq, Dq)
         grad = np.einsum("kr,krp->p", Eq, Dq)
-        # the goals: the gradient step on the feedforward's sensitivity, as in step()
-        g_goal = self.gradient(J, E)
-        grad = np.where(self.is_goal, g_goal, grad)
-        return self.apply(theta, grad, hess)
+        # the weights' Levenberg-Marquardt step, then the goals' gradient step of step() on the
+        # error that step leaves (both on all of it: an offset corrected twice)
+        theta_next = self.apply(theta, np.where(self.is_goal, 0.0, grad), hess)
+        left = E - np.einsum("krp,p->kr", D, (theta_next - theta)[self.learned])
+        goals = self.learned[self.is_goal]
+        theta_next[goals] += self.rates[self.is_goal] * self.gradient(J, left)[self.is_goal]
+        return theta_next
 
     def error(self, U_fb: np.ndarray) -> np.ndarray:
         """Error signal :math:`e_k` of joint-local feedback samples ``(n, nv)``: the feedback

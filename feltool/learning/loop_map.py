@@ -79,27 +79,63 @@ def lifted_state_sensitivity(derivatives: tuple, Kfb: np.ndarray, S: np.ndarray,
         S: ``(nv,)`` the actuation selection.
         dt: Control step in [s].
     """
-    Dq, Dv, M = derivatives
     n, nv, P = U.shape
-    Minv = np.linalg.inv(M)  # (n, nv, nv)
-    # the acceleration's sensitivity: a = Ax x_sub + Minv S (U - Kfb x), the feedback from the
-    # control step's start (held over its sub-steps), the dynamics' at each sub-step
-    Ax = -np.einsum("kij,kjl->kil", Minv, np.concatenate([Dq, Dv], axis=2))
-    A, B = step_map(Ax, Minv * S[None, None, :], dt, substeps, semi_implicit)
-    A = A - np.einsum("kij,kjl->kil", B, Kfb)
+    A, B = closed_loop_maps(derivatives, Kfb, S, dt, substeps, semi_implicit)
     W = np.einsum("kij,kjp->kip", B, U)  # (n, 2nv, P)
     Z = np.zeros((n + 1, 2 * nv, P))
     for k in range(n):
         Z[k + 1] = A[k] @ Z[k] + W[k]
     if periodic:
-        Phi = np.eye(2 * nv)  # the monodromy: the response to the cycle's start
-        Xs = np.empty((n + 1, 2 * nv, 2 * nv))
-        Xs[0] = Phi
-        for k in range(n):
-            Xs[k + 1] = A[k] @ Xs[k]
+        Xs = state_transitions(A)
         z0 = np.linalg.solve(np.eye(2 * nv) - Xs[n], Z[n])
         Z = Z + np.einsum("kij,jp->kip", Xs, z0)
     return Z[:n]
+
+
+def closed_loop_maps(derivatives: tuple, Kfb: np.ndarray, S: np.ndarray, dt: float,
+                     substeps: int = 1, semi_implicit: bool = True) -> tuple[np.ndarray,
+                                                                             np.ndarray]:
+    r"""The closed loop's linearized control steps :math:`\delta x_{k+1} = A_k\delta x_k +
+    B_k\delta u_k` ``(n, 2nv, 2nv)``, ``(n, 2nv, nv)`` along the desired trajectory, the
+    feedback :math:`-K^{fb}_k\delta x_k` closed in :math:`A_k` (arguments as
+    :func:`lifted_state_sensitivity`)."""
+    Dq, Dv, M = derivatives
+    Minv = np.linalg.inv(M)  # (n, nv, nv)
+    # the acceleration's sensitivity: a = Ax x_sub + Minv S (U - Kfb x), the feedback from the
+    # control step's start (held over its sub-steps), the dynamics' at each sub-step
+    Ax = -np.einsum("kij,kjl->kil", Minv, np.concatenate([Dq, Dv], axis=2))
+    A, B = step_map(Ax, Minv * S[None, None, :], dt, substeps, semi_implicit)
+    return A - np.einsum("kij,kjl->kil", B, Kfb), B
+
+
+def state_transitions(A: np.ndarray) -> np.ndarray:
+    r"""``(n + 1, 2nv, 2nv)``: :math:`X_k = A_{k-1}\cdots A_0`, the response of the state at
+    each step's start to the cycle's start; :math:`X_n` is the monodromy."""
+    Xs = np.empty((len(A) + 1,) + A.shape[1:])
+    Xs[0] = np.eye(A.shape[1])
+    for k in range(len(A)):
+        Xs[k + 1] = A[k] @ Xs[k]
+    return Xs
+
+
+def transient_error(derivatives: tuple, gains: tuple, S: np.ndarray, dt: float,
+                    dx: np.ndarray, substeps: int = 1, semi_implicit: bool = True) -> np.ndarray:
+    r"""The part ``(n, nv)`` of a cycle's error feedback [N m] that is the transient of its
+    start, not the loop's periodic response to the parameters (``learning.remove_transient``).
+
+    A cycle starts where the cycle before ended, off the periodic state :math:`x^\star_0` of
+    the parameters it runs (they changed). In the linearized loop the offset
+    :math:`d_0 = x_0 - x^\star_0` evolves as :math:`X_k d_0` and ends as :math:`X_n d_0`, so the
+    measured change over the cycle ``dx`` :math:`= x_n - x_0 = (X_n - I)\,d_0` gives
+    :math:`d_0`; its error feedback is :math:`-K^e_k X_k d_0`. A loop that forgets its start
+    within a cycle (a slow period) has none; at a fast period it can carry over most of the
+    step's change from cycle to cycle, and the periodic map :math:`D` would fit the step to
+    it. ``dx`` ``(2nv,)``: the tangent change of the state over the cycle."""
+    Kfb, Ke = gains[:2]
+    A, _ = closed_loop_maps(derivatives, Kfb, S, dt, substeps, semi_implicit)
+    Xs = state_transitions(A)
+    d0 = np.linalg.solve(Xs[-1] - np.eye(len(dx)), dx)
+    return -np.einsum("kjx,kxy,y->kj", Ke, Xs[:-1], d0)
 
 
 def step_map(Ax: np.ndarray, Au: np.ndarray, dt: float, substeps: int = 1,
@@ -167,5 +203,6 @@ def apply_q(signal: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
     return np.fft.irfft(F, n=signal.shape[0], axis=0)
 
 
-__all__ = ["apply_q", "error_sensitivity", "feedback_gains", "lifted_state_sensitivity",
-           "q_filter", "step_map"]
+__all__ = ["apply_q", "closed_loop_maps", "error_sensitivity", "feedback_gains",
+           "lifted_state_sensitivity", "q_filter", "state_transitions", "step_map",
+           "transient_error"]

@@ -100,6 +100,10 @@ class DisturbedLoop(ClosedLoop):
             q, v = self.advance(q, v, Tau[k])
         log = CycleLog(Qm, Vm, U, q, v, Urows, Uerr)
         log.q_true, log.v_true, log.tau_applied = Qt, Vt, Tau
+        nq_end = rng.normal(0.0, 1.0, nq) * sp.measurement_noise.q  # (drawn last: the draws
+        nv_end = rng.normal(0.0, 1.0, nv) * sp.measurement_noise.v  # before are as they were)
+        log.end_measured = (self.dynamics.integrate(q, nq_end[:nv]) if nq != nv else q + nq_end,
+                            v + nv_end)
         if self.limits is not None and nq == nv:
             log.limit_hits = self.limits.hits(Qt, Cmd)
         return log

@@ -166,6 +166,9 @@ class FrictionPlant:
     def integrate(self, q, dq):
         return self.rigid.integrate(q, dq)
 
+    def difference(self, q0, q1):
+        return self.rigid.difference(q0, q1)
+
 
 def make_plant(plant: PlantConfig, robot: Robot, joints: list[str], rigid: Dynamics) -> Dynamics:
     """The plant's dynamics: ``rigid`` (the reduced plant robot's backend), with friction if any.

@@ -391,7 +391,7 @@ def cycle_function(exp, plant, full: bool = False, name: str = "cycle") -> ca.Fu
     if L:
         errors = Uerr * ca.repmat(mask, nv, 1) if lay.masked else Uerr
         step = fit_step(exp, lay, theta, sens, (Qd, Vd, Ad), kp, kd, Dall, Uerr, rates, damping,
-                        symbolic_frames(law, exp.robot.model), mask) \
+                        symbolic_frames(law, exp.robot.model), mask, x_end - x0) \
             if learner.fit == "closed_loop" else \
             fel_step(learner, lay, theta, sens, Dall, Uerr * ca.repmat(weight, nv, 1), errors,
                      rates, damping, weight)

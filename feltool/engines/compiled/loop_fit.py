@@ -9,7 +9,10 @@ the linearized step :math:`\delta x^+ = A_k\delta x + B_k\delta u` and the feedf
 sensitivity :math:`J_k`. The parameters' state sensitivity is propagated over the cycle
 (``mapaccum``), made periodic with the monodromy, and the error feedback's sensitivity
 :math:`D_k = K^e_k Z_k` summed into :math:`H = \sum_k D_k^\top D_k`, :math:`g = \sum_k
-D_k^\top e_k` for the Levenberg-Marquardt step (:func:`feltool.control.cycle.fel_update`).
+D_k^\top e_k` for the Levenberg-Marquardt step (:func:`feltool.control.cycle.fel_update`),
+:math:`e_k` without the transient of the cycle's start (the monodromy and the cycle's change of
+state give the start's offset from the periodic state). The goals take the gradient step on
+the error the weights' step leaves, :math:`\sum_k J_k^\top (e_k - D_k\Delta w)`.
 """
 
 from __future__ import annotations
@@ -23,11 +26,12 @@ from feltool.dynamics.symbolic import symbolic_rnea
 
 
 def linearization(exp, blocks: tuple, frames: dict) -> ca.Function:
-    """``(q, v, a, kp, kd, xq, xv, xa) -> (A, W, Ke, TB)`` at one step (SX): the linearized
+    """``(q, v, a, kp, kd, xq, xv, xa) -> (A, W, Ke, TB, J)`` at one step (SX): the linearized
     step's ``A`` ``(2nv, 2nv)``, the parameters' input ``W = B U`` ``(2nv, P)``, the error
-    signal's state gain ``Ke`` ``(nv, 2nv)`` and its direct term ``TB`` ``(nv, P)`` (learned
-    tracked joints' references); ``xq, xv, xa`` the learned joints' sensitivity rows at the
-    step, concatenated in the order of ``blocks`` ``((velocity index, parameters), ...)``."""
+    signal's state gain ``Ke`` ``(nv, 2nv)``, its direct term ``TB`` ``(nv, P)`` (learned
+    tracked joints' references) and the feedforward's sensitivity ``J`` ``(nv, P)``; ``xq, xv,
+    xa`` the learned joints' sensitivity rows at the step, concatenated in the order of
+    ``blocks`` ``((velocity index, parameters), ...)``."""
     model, law, loop = exp.robot.model, exp.law, exp.loop
     nv = model.nv
     P = sum(p for _, p in blocks)
@@ -72,22 +76,25 @@ def linearization(exp, blocks: tuple, frames: dict) -> ca.Function:
         A, B = a_s @ A, a_s @ B + b_s
     A = A - B @ (T @ Krows)  # the feedback from the control step's start, held
     return ca.Function("loop_linearization", [q, v, a, kp, kd, xq, xv, xa],
-                       [A, B @ U, Te @ Krows, Te @ Bref])
+                       [A, B @ U, Te @ Krows, Te @ Bref, J])
 
 
 def closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping, g_plain,
-                     frames: dict, mask=None):
+                     frames: dict, mask=None, dx=None):
     """The learned parameters after the closed-loop fit's step, in the graph: ``sens`` per
     learned joint ``[Xq, Xv, Xa]`` (each ``(n, P_l)``), ``desired`` ``(Qd, Vd, Ad)`` (each
     ``(nv, n)``), ``E`` the error torques ``(nv, n)``, ``g_plain`` the gradient of eq. 3.6 (the
     goals keep its step); ``frames`` the law's symbolic frame angles; ``mask`` ``(1, n)`` the
     steps the cycle has (cycles of changing length: a step it does not have leaves the
-    sensitivity as it is and counts nowhere), None: all."""
+    sensitivity as it is and counts nowhere), None: all; ``dx`` ``(2nv, 1)`` the state's change
+    over the cycle (with ``learning.remove_transient`` the fit is to the error without the
+    transient of the cycle's start, :func:`feltool.learning.loop_map.transient_error`), None:
+    the error as it is."""
     nv, n, P = lay.nv, lay.n, lay.n_learned
     Qd, Vd, Ad = desired
     XT = [ca.vertcat(*[blk[c].T for blk in sens]) for c in range(3)]  # (P, n) each
     lin = linearization(exp, lay.blocks, frames).map(n, "serial")
-    A, W, Ke, TB = lin(Qd, Vd, Ad, ca.repmat(kp, 1, n), ca.repmat(kd, 1, n), *XT)
+    A, W, Ke, TB, Jk = lin(Qd, Vd, Ad, ca.repmat(kp, 1, n), ca.repmat(kd, 1, n), *XT)
     if mask is not None:
         def spread(rows, cols):  # the mask of every step over its block of columns
             return ca.kron(mask, ca.DM.ones(rows, cols))
@@ -95,30 +102,42 @@ def closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping, 
         m2 = spread(2 * nv, 2 * nv)
         A = A * m2 + ca.repmat(ca.DM.eye(2 * nv), 1, n) * (1 - m2)
         W, Ke, TB = W * spread(2 * nv, P), Ke * spread(nv, 2 * nv), TB * spread(nv, P)
+        Jk = Jk * spread(nv, P)
     z, x = ca.SX.sym("z", 2 * nv, P), ca.SX.sym("x", 2 * nv, 2 * nv)
     a_k, w_k = ca.SX.sym("a", 2 * nv, 2 * nv), ca.SX.sym("w", 2 * nv, P)
     roll = ca.Function("loop_roll", [z, x, a_k, w_k], [ca.mtimes(a_k, z) + w_k,
                                                         ca.mtimes(a_k, x)])
     roll = roll.mapaccum("loop_rolls", n, [0, 1], [0, 1])
     Zs, Xs = roll(ca.DM.zeros(2 * nv, P), ca.DM.eye(2 * nv), A, W)
-    z0 = ca.solve(ca.DM.eye(2 * nv) - Xs[:, (n - 1) * 2 * nv:], Zs[:, (n - 1) * P:])
+    monodromy = Xs[:, (n - 1) * 2 * nv:]
+    z0 = ca.solve(ca.DM.eye(2 * nv) - monodromy, Zs[:, (n - 1) * P:])
+    d0 = ca.DM.zeros(2 * nv, 1)  # the cycle's start off the periodic state
+    if dx is not None and exp.learner.loop.get("remove_transient"):
+        d0 = ca.solve(monodromy - ca.DM.eye(2 * nv), dx)
     Zk = ca.horzcat(ca.DM.zeros(2 * nv, P), Zs[:, :(n - 1) * P])  # the state's at each start
     Xk = ca.horzcat(ca.DM.eye(2 * nv), Xs[:, :(n - 1) * 2 * nv])
     ke, zk, xk = ca.SX.sym("ke", nv, 2 * nv), ca.SX.sym("zk", 2 * nv, P), \
         ca.SX.sym("xk", 2 * nv, 2 * nv)
     tb, e, zz = ca.SX.sym("tb", nv, P), ca.SX.sym("e", nv), ca.SX.sym("z0", 2 * nv, P)
+    jk, d = ca.SX.sym("jk", nv, P), ca.SX.sym("d0", 2 * nv)
     D = ca.mtimes(ke, zk + ca.mtimes(xk, zz)) - tb
-    sums = ca.Function("loop_sums", [ke, zk, xk, zz, tb, e], [ca.mtimes(D.T, D),
-                                                                ca.mtimes(D.T, e)])
-    H, g = sums.map("loop_sum", "serial", n, [3], [0, 1])(Ke, Zk, Xk, z0, TB, E)
+    e_periodic = e + ca.mtimes(ke, ca.mtimes(xk, d))
+    sums = ca.Function("loop_sums", [ke, zk, xk, zz, tb, e, jk, d],
+                       [ca.mtimes(D.T, D), ca.mtimes(D.T, e_periodic), ca.mtimes(jk.T, D),
+                        ca.mtimes(jk.T, e_periodic - e)])
+    H, g, JD, g_transient = sums.map("loop_sum", "serial", n, [3, 7], [0, 1, 2, 3])(
+        Ke, Zk, Xk, z0, TB, E, Jk, d0)
     is_goal = np.asarray(exp.learner.is_goal)
     pick = ca.DM(is_goal.astype(float))
-    grad = pick * g_plain + (1 - pick) * g
-    return fel_update(CASADI, theta, grad, H, rates, is_goal, "gauss_newton", damping)
+    # the weights' Levenberg-Marquardt step, then the goals' gradient step on what it leaves
+    theta_w = fel_update(CASADI, theta, (1 - pick) * g, H, rates, is_goal, "gauss_newton",
+                         damping)
+    g_goal = g_plain + g_transient - ca.mtimes(JD, theta_w - theta)
+    return theta_w + pick * rates * g_goal
 
 
 def fit_step(exp, lay, theta, sens, desired, kp, kd, Dall, E, rates, damping, frames: dict,
-             mask=None):
+             mask=None, dx=None):
     """:func:`closed_loop_step` with the goals' gradient from the learned joints' derivative
     columns ``Dall`` (:func:`feltool.engines.compiled.graph.feedforward_function`'s, as
     :func:`feltool.engines.compiled.graph.fel_step` uses them)."""
@@ -129,7 +148,7 @@ def fit_step(exp, lay, theta, sens, desired, kp, kd, Dall, E, rates, damping, fr
         E = E * ca.repmat(mask, lay.nv, 1)
     g_plain, _ = fel_sums(CASADI, sens, deriv, E, None)
     return closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping,
-                            g_plain, frames, mask)
+                            g_plain, frames, mask, dx)
 
 
 __all__ = ["closed_loop_step", "fit_step", "linearization"]
