@@ -175,3 +175,60 @@ def test_a_physical_walkers_bad_plant_is_one_line_naming_the_field(setting, need
     assert code == 2 and needle in err, err
     assert len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "run").exists()
+
+
+BAD = Path(__file__).parent / "bad_inputs"
+
+
+@pytest.mark.parametrize("case, attr, value", [
+    ("urdf_negative_damping", "damping", "-0.5"), ("urdf_negative_friction", "friction", "-0.2")])
+@pytest.mark.parametrize("command", [["check"], ["run", "--no-progress"],
+                                     ["run", "--no-progress", "--set", "plant={simulator: mujoco}"]],
+                         ids=["check", "run", "run_mujoco"])
+def test_a_urdfs_negative_damping_or_friction_is_one_line_exit_2(case, attr, value, command,
+                                                                   tmp_path):
+    """A URDF joint's <dynamics damping="-0.5"> (or a negative friction) makes a plant that
+    creates energy (issue 28, acceptance 5): refused at load for every plant, MuJoCo's too,
+    as a user sees it: exit 2, one line naming the file, the joint and the attribute."""
+    out = tmp_path / "run"
+    res = feltool(*command[:1], str(BAD / f"{case}.yaml"), *command[1:],
+                  *(["--out", str(out)] if command[0] == "run" else []))
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2, res.stderr
+    assert len(lines) == 1, lines
+    assert f"{case[len('urdf_'):]}.urdf" in lines[0], lines[0]
+    assert f'<joint name="elbow"> <dynamics {attr}="{value}">: must be at least 0' in lines[0]
+    assert "Traceback" not in res.stderr + res.stdout
+    assert not out.exists()
+
+
+def test_zero_and_positive_joint_damping_load_as_before(tmp_path, capsys):
+    """Only a negative <dynamics> value is refused: 0 (none) and positive ones load."""
+    arm = (BAD / "negative_damping.urdf").read_text()
+    for dynamics in ('damping="0" friction="0"', 'damping="0.5" friction="0.2"'):
+        (tmp_path / "arm.urdf").write_text(arm.replace('damping="-0.5" friction="0"', dynamics))
+        config = tmp_path / "arm.yaml"
+        config.write_text(STANDARD.read_text().replace("robot: two_link_arm", "robot: arm.urdf"))
+        code, err = _run(["check", str(config)], capsys)
+        assert code == 0, (dynamics, err)
+
+
+def test_a_negative_damping_in_a_model_built_elsewhere_is_refused(tmp_path):
+    """Models that bypass feltool's URDF reader (example-robot-data's, the legged loader's)
+    are held to the same rule through Pinocchio's model.damping and model.friction."""
+    from feltool.errors import RobotError
+    from feltool.robot.robot import check_model_dynamics, load_robot
+    from feltool.walking.legged.model import load_legged_urdf
+
+    model = load_robot("example-robot-data:ur5").model
+    check_model_dynamics(model, "ur5")  # as shipped
+    model.friction[2] = -0.1
+    with pytest.raises(RobotError, match=r"ur5: joint 'elbow_joint' <dynamics "
+                                         r'friction="-0.1">: must be at least 0'):
+        check_model_dynamics(model, "ur5")
+    path = tmp_path / "legged.urdf"
+    path.write_text(_chain_urdf(2, "revolute").replace(
+        '</joint>', '<dynamics damping="-0.5"/></joint>', 1))
+    with pytest.raises(RobotError, match=r"legged.urdf: joint 'j1' <dynamics "
+                                         r'damping="-0.5">: must be at least 0'):
+        load_legged_urdf(path, {"X": {"frame": "l2"}})

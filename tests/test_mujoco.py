@@ -334,3 +334,15 @@ def test_mujoco_rollout_feeds_the_viewer(tmp_path):
 def test_mujoco_walker_refuses_the_poincare_map():
     with pytest.raises(ConfigError, match="walking.poincare: the Poincare map is not computed"):
         load_experiment(CONFIGS / "gaits" / "five_link_walker.yaml", ["plant={simulator: mujoco}"])
+
+
+def test_mujoco_never_gets_a_urdfs_negative_damping(tmp_path):
+    """A negative <dynamics damping> would make MuJoCo's plant create energy: the URDF is
+    refused when it is loaded, naming the joint and the attribute, before MuJoCo compiles it;
+    a zero damping compiles and is Pinocchio's ABA as before."""
+    from feltool.errors import RobotError
+
+    with pytest.raises(RobotError, match=r'<joint name="shoulder"> <dynamics damping="-0.5">'):
+        _arm(tmp_path, damping=-0.5)
+    worst, _ = _rollout_pair(_arm(tmp_path, damping=0.0), 0.0, seconds=0.2)
+    assert worst < 1e-6, worst

@@ -8,7 +8,8 @@ compiled with these settings, so that without contacts MuJoCo's dynamics are the
   zero rotational inertia and which changes no inertia a real body has), fixed links kept as
   bodies (``fusestatic`` off), visuals discarded;
 * joint limits off (feltool counts and reports the limits itself, ``sim.joint_limits``);
-  damping and dry friction (``frictionloss``) from the URDF's ``<dynamics>``; armature 0
+  damping and dry friction (``frictionloss``) from the URDF's ``<dynamics>`` (>= 0, checked
+  when the URDF is loaded); armature 0
   (a URDF has none);
 * ``integrator: Euler`` with ``eulerdamp`` disabled: a step is semi-implicit Euler,
   :math:`\dot q \mathrel{+}= h\ddot q;\ q \mathrel{+}= h\dot q`, as feltool's own plant;

@@ -1,4 +1,4 @@
-"""Physical plausibility of rigid-body parameters: masses and rotational inertias.
+"""Physical plausibility of rigid-body parameters: masses, rotational inertias, joint dynamics.
 
 One set of rules for every place a body's parameters enter feltool (URDF ``<inertial>``
 elements, ``plant.bodies`` overrides, payloads), so that a body no physical object could have
@@ -15,6 +15,8 @@ The rules (what a researcher expects of a rigid body):
   (and I_2 = I_3); a negative moment, or moments no mass distribution can produce, are not.
   The inequalities are checked with a relative tolerance of :data:`INERTIA_RTOL` (URDFs round
   their numbers).
+* a joint's ``<dynamics>`` damping [N m s/rad] and friction [N m] are >= 0: a negative damping
+  or friction pushes the joint along its motion, a plant that creates energy.
 """
 
 from __future__ import annotations
@@ -66,3 +68,19 @@ def inertia_problem(values: list[float] | tuple[float, ...] | np.ndarray) -> str
 
 def _fmt(moments: np.ndarray) -> str:
     return "[" + ", ".join(f"{m:.4g}" for m in moments) + "]"
+
+
+#: What a negative value of a joint's ``<dynamics>`` attribute would do.
+_DYNAMICS_SIGN = {"damping": "a negative damping pushes the joint along its velocity",
+                  "friction": "a negative friction pushes the joint along its motion"}
+
+
+def joint_dynamics_problem(attr: str, value: float) -> str | None:
+    """Why ``value`` of a joint's ``<dynamics>`` attribute ``attr`` (``damping`` in
+    [N m s/rad], ``friction`` in [N m]) is not physical, or None when it is."""
+    if not math.isfinite(value):
+        return f"{attr} {value} is not a finite number"
+    if value < 0.0:
+        return (f"must be at least 0 ({_DYNAMICS_SIGN[attr]}: a plant that creates energy; "
+                "0 = none)")
+    return None

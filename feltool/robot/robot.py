@@ -19,7 +19,7 @@ import pinocchio as pin
 
 from feltool.bounds import MAX_URDF_BYTES
 from feltool.errors import RobotError
-from feltool.robot.physical import mass_problem
+from feltool.robot.physical import joint_dynamics_problem, mass_problem
 from feltool.robot.urdf import read_urdf
 
 ERD_PREFIX = "example-robot-data:"
@@ -328,9 +328,10 @@ def _load_erd(name: str, source: str) -> Robot:
 
 
 def _check_model_numbers(model: pin.Model, where: str) -> None:
-    """Finite, non-negative masses and finite inertias of a model built elsewhere (the
-    example-robot-data robots are taken as shipped: several of them, e.g. go1 and pr2, have
-    inertias that violate the triangle inequality, which URDF files given by path may not)."""
+    """Finite, non-negative masses, finite inertias and non-negative joint damping and friction
+    of a model built elsewhere (the example-robot-data robots are taken as shipped: several of
+    them, e.g. go1 and pr2, have inertias that violate the triangle inequality, which URDF files
+    given by path may not)."""
     for jid in range(1, model.njoints):
         inertia = model.inertias[jid]
         problem = mass_problem(float(inertia.mass), allow_zero=True)
@@ -338,3 +339,22 @@ def _check_model_numbers(model: pin.Model, where: str) -> None:
             problem = "its rotational inertia has an entry that is not a finite number"
         if problem:
             raise RobotError(f"{where}: the body moved by joint '{model.names[jid]}': {problem}")
+    check_model_dynamics(model, where)
+
+
+def check_model_dynamics(model: pin.Model, where: str) -> None:
+    """Non-negative joint damping and friction (the URDF's ``<dynamics>``, in Pinocchio's
+    ``model.damping`` and ``model.friction``) of a model built without
+    :func:`feltool.robot.urdf.read_urdf`: a negative one is a plant that creates energy.
+
+    Raises:
+        RobotError: one line naming ``where``, the joint and the attribute.
+    """
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        for attr in ("damping", "friction"):
+            for value in np.asarray(getattr(model, attr))[joint.idx_v:joint.idx_v + joint.nv]:
+                problem = joint_dynamics_problem(attr, float(value))
+                if problem:
+                    raise RobotError(f"{where}: joint '{model.names[jid]}' <dynamics "
+                                     f"{attr}=\"{float(value):g}\">: {problem}")

@@ -12,7 +12,7 @@ model and its visuals from (:mod:`feltool.robot.robot`). Every problem names the
    parent and child is a link, no link has two parents, no cycle, one root.
 4. The physics is one a real robot can have (:mod:`feltool.robot.physical`): masses >= 0, inertias
    positive semi-definite and obeying the triangle inequality, non-zero joint axes, effort and
-   velocity limits >= 0, mass on every moving body.
+   velocity limits >= 0, ``<dynamics>`` damping and friction >= 0, mass on every moving body.
 5. Every mesh file exists inside the URDF's folder or a package directory (``package://``
    resolved against those and example-robot-data's); the description names it by its
    absolute path, so Pinocchio, the viewer and the checks read the same file.
@@ -48,7 +48,7 @@ import numpy as np
 from feltool.bounds import MAX_URDF_LINKS
 from feltool.errors import RobotError
 from feltool.robot.deferred import yourdfpy
-from feltool.robot.physical import inertia_problem, mass_problem
+from feltool.robot.physical import inertia_problem, joint_dynamics_problem, mass_problem
 
 WORLD = "world"
 
@@ -325,8 +325,9 @@ def _check_tree(urdf: yourdfpy.URDF, where: str) -> None:
 # -- 4. physics -----------------------------------------------------------------------------------
 
 def _check_physics(urdf: yourdfpy.URDF, where: str) -> None:
-    """Masses, inertias (:mod:`feltool.robot.physical`), joint axes and limits that a real robot can
-    have, and mass on every body a joint moves; each problem names the element."""
+    """Masses, inertias (:mod:`feltool.robot.physical`), joint axes, limits and damping and
+    friction that a real robot can have, and mass on every body a joint moves; each problem
+    names the element."""
     for link in urdf.robot.links:
         inertial = link.inertial
         if inertial is None:
@@ -353,6 +354,12 @@ def _check_physics(urdf: yourdfpy.URDF, where: str) -> None:
             if value is not None and value < 0:
                 raise RobotError(f"{where}: {owner} <limit {attr}=\"{value:g}\">: must be at "
                                  "least 0 (0 = no limit)")
+        for attr in ("damping", "friction"):
+            value = None if joint.dynamics is None else getattr(joint.dynamics, attr)
+            value = None if value is None else float(value)  # yourdfpy keeps the text
+            problem = None if value is None else joint_dynamics_problem(attr, value)
+            if problem:
+                raise RobotError(f"{where}: {owner} <dynamics {attr}=\"{value:g}\">: {problem}")
     _check_moving_bodies_have_mass(urdf, where)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.errors import ConfigError, RobotError
+from feltool.robot.robot import check_model_dynamics
 
 #: The feet of Solo-12 in example-robot-data, by their frames
 SOLO12_FEET = {"FL": {"frame": "FL_FOOT"}, "FR": {"frame": "FR_FOOT"},
@@ -193,6 +194,7 @@ def load_legged_urdf(path: str | Path, feet: dict[str, dict], effort=None) -> Le
         model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
     except Exception as exc:  # urdfdom's messages
         raise RobotError(f"{path}: not a readable URDF ({exc})") from None
+    check_model_dynamics(model, str(path))
     return legged_model(model, feet, effort=effort, name=path.stem)
 
 
