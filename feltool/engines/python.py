@@ -12,6 +12,7 @@ import numpy as np
 
 from feltool.control.closed_loop import ClosedLoop, CycleLog
 from feltool.control.feedback import wrap
+from feltool.control.hold import hold_mean
 from feltool.dynamics.interface import Dynamics
 from feltool.engines.outcome import CycleOutcome
 from feltool.learning.fel import feedforward
@@ -23,11 +24,13 @@ if TYPE_CHECKING:
 
 def _feedforward(exp: Experiment, Qd, Vd, Ad) -> tuple[np.ndarray, list | None]:
     """:math:`u_{ff}` along the desired trajectory, with the RNEA derivatives (from the same
-    pass) when the learner needs exact sensitivities."""
+    pass) when the learner needs exact sensitivities; ``sim.feedforward: hold_mean`` holds each
+    step's mean (:mod:`feltool.control.hold`), the derivatives stay the samples'."""
     if exp.learner.n_learned and exp.config.learning.sensitivity == "exact":
         u_ff, *derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)
-        return u_ff, derivs
-    return feedforward(exp.dynamics, Qd, Vd, Ad), None
+    else:
+        u_ff, derivs = feedforward(exp.dynamics, Qd, Vd, Ad), None
+    return (hold_mean(u_ff) if exp.config.sim.feedforward == "hold_mean" else u_ff), derivs
 
 
 def per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop,
@@ -58,6 +61,8 @@ def per_cycle(exp: Experiment, theta: np.ndarray, q, v, loop: ClosedLoop,
                 derivs = exp.dynamics.inverse_derivatives_batch(Qd, Vd, Ad)[1:]
             J = exp.learner.jacobian(exp.dynamics, theta, Qd, Vd, Ad, derivs, cycle=cycle,
                                      transients=motion.transients if motion is not None else None)
+            if exp.config.sim.feedforward == "hold_mean":  # the held feedforward's sensitivity
+                J = hold_mean(J)
             theta_next = exp.learner.closed_loop_step(theta, J, derivs, log.u_err, Qd, cycle,
                                                       log.measured_change(exp.dynamics))
         elif derivs is not None:  # exact: the sums of eq. 3.6 without forming J

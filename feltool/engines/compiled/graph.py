@@ -31,6 +31,7 @@ import casadi as ca
 import numpy as np
 
 from feltool.control.cycle import advance, feedback, fel_sums, fel_update, wrap
+from feltool.control.hold import hold_mean_columns
 from feltool.control.ops import CASADI
 from feltool.dynamics.symbolic import (
     symbolic_aba,
@@ -352,6 +353,8 @@ def cycle_function(exp, plant, full: bool = False, name: str = "cycle") -> ca.Fu
     # 2. feedforward and the learned joints' derivative columns (and the correction's
     # regressor), per sample
     Uff, Dall, Y = feedforward_function(exp, lay).map(n, "serial")(Qd, Vd, Ad, theta_m)
+    if exp.config.sim.feedforward == "hold_mean":  # each step's mean over its hold
+        Uff = hold_mean_columns(Uff, 1, mask)
     per_step_model = model is not None and model.step_mode == "per_step"
     if model is not None and not per_step_model:  # the correction with this cycle's theta_m
         drives = ca.DM(model.error_mask)  # the joints the correction drives

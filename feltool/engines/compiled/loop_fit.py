@@ -21,15 +21,17 @@ import casadi as ca
 import numpy as np
 
 from feltool.control.cycle import fel_sums, fel_update
+from feltool.control.hold import hold_mean_columns
 from feltool.control.ops import CASADI
 from feltool.dynamics.symbolic import symbolic_rnea
 
 
 def linearization(exp, blocks: tuple, frames: dict) -> ca.Function:
-    """``(q, v, a, kp, kd, xq, xv, xa) -> (A, W, Ke, TB, J)`` at one step (SX): the linearized
-    step's ``A`` ``(2nv, 2nv)``, the parameters' input ``W = B U`` ``(2nv, P)``, the error
-    signal's state gain ``Ke`` ``(nv, 2nv)``, its direct term ``TB`` ``(nv, P)`` (learned
-    tracked joints' references) and the feedforward's sensitivity ``J`` ``(nv, P)``; ``xq, xv,
+    """``(q, v, a, kp, kd, xq, xv, xa) -> (A, W, Ke, TB, J, B)`` at one step (SX): the
+    linearized step's ``A`` ``(2nv, 2nv)``, the parameters' input ``W = B U`` ``(2nv, P)``, the
+    error signal's state gain ``Ke`` ``(nv, 2nv)``, its direct term ``TB`` ``(nv, P)`` (learned
+    tracked joints' references), the feedforward's sensitivity ``J`` ``(nv, P)`` and the
+    torque's input ``B`` ``(2nv, nv)``; ``xq, xv,
     xa`` the learned joints' sensitivity rows at the step, concatenated in the order of
     ``blocks`` ``((velocity index, parameters), ...)``."""
     model, law, loop = exp.robot.model, exp.law, exp.loop
@@ -76,7 +78,7 @@ def linearization(exp, blocks: tuple, frames: dict) -> ca.Function:
         A, B = a_s @ A, a_s @ B + b_s
     A = A - B @ (T @ Krows)  # the feedback from the control step's start, held
     return ca.Function("loop_linearization", [q, v, a, kp, kd, xq, xv, xa],
-                       [A, B @ U, Te @ Krows, Te @ Bref, J])
+                       [A, B @ U, Te @ Krows, Te @ Bref, J, B])
 
 
 def closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping, g_plain,
@@ -94,7 +96,15 @@ def closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping, 
     Qd, Vd, Ad = desired
     XT = [ca.vertcat(*[blk[c].T for blk in sens]) for c in range(3)]  # (P, n) each
     lin = linearization(exp, lay.blocks, frames).map(n, "serial")
-    A, W, Ke, TB, Jk = lin(Qd, Vd, Ad, ca.repmat(kp, 1, n), ca.repmat(kd, 1, n), *XT)
+    A, W, Ke, TB, Jk, Bk = lin(Qd, Vd, Ad, ca.repmat(kp, 1, n), ca.repmat(kd, 1, n), *XT)
+    if exp.config.sim.feedforward == "hold_mean":  # the held torque's sensitivity: J's mean
+        Jbar = hold_mean_columns(Jk, P, mask)
+        b, dj, e = ca.SX.sym("b", 2 * nv, nv), ca.SX.sym("dj", nv, P), ca.SX.sym("e", nv)
+        through = ca.Function("hold_input", [b, dj], [ca.mtimes(b, dj)]).map(n, "serial")
+        W, Jk = W + through(Bk, Jbar - Jk), Jbar
+        # the goals' gradient of eq. 3.6 on the held feedforward: sum_k Jbar_k^T e_k
+        g_plain = ca.sum2(ca.Function("hold_gradient", [dj, e], [ca.mtimes(dj.T, e)]).map(
+            n, "serial")(Jbar, E))
     if mask is not None:
         def spread(rows, cols):  # the mask of every step over its block of columns
             return ca.kron(mask, ca.DM.ones(rows, cols))
