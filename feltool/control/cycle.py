@@ -182,6 +182,23 @@ def fel_update(xp, theta_learned, grad, hess, rates: np.ndarray, is_goal: np.nda
     return theta_learned + delta
 
 
+def goal_step_scale(xp, grad, hess, dw, dg):
+    r"""The fraction :math:`s \in [0, 1]` of the goals' gradient step ``dg`` that the closed
+    loop's quadratic model of the error keeps (``learning.fit: closed_loop``): the step stops at
+    the model's least error along ``dg`` where it would pass it.
+
+    With :math:`g = \sum_k D_k^\top e_k`, :math:`H = \sum_k D_k^\top D_k` and the weights'
+    step :math:`\Delta w` (``dw``), the error after both steps is :math:`e - D\Delta w -
+    s D\Delta g`, least at :math:`s^\star = (g^\top\Delta g - \Delta w^\top H\Delta g) /
+    (\Delta g^\top H\Delta g)`; :math:`s = \min(1, \max(0, s^\star))` (1 where the loop does
+    not see the step). A gradient step's rate fits one loop gain; where the loop passes the
+    goal more strongly (a faster period) the same rate overshoots."""
+    Hdg = hess @ dg
+    den = xp.dot(dg, Hdg)
+    num = xp.dot(grad, dg) - xp.dot(dw, Hdg)
+    return xp.where(den > 1e-300, xp.clip(num / (den + 1e-300), 0.0, 1.0), 1.0)
+
+
 def fel_sums(xp, sens: list, deriv: list, E, rows=None):
     r"""The cycle's sums of eq. 3.6 without forming the Jacobian: :math:`g = \sum_k J_k^\top
     e_k` and (with ``rows``) :math:`H = \sum_k J_k^\top \mathrm{diag}(\mathrm{rows}) J_k`.

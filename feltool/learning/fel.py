@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from feltool.control.cycle import fel_sums, fel_update
+from feltool.control.cycle import fel_sums, fel_update, goal_step_scale
 from feltool.control.ops import NUMPY
 from feltool.dynamics.interface import Dynamics
 from feltool.learning.loop_map import apply_q, error_sensitivity, feedback_gains, q_filter, transient_error
@@ -183,9 +183,10 @@ class FeedbackErrorLearner:
         # the weights' Levenberg-Marquardt step, then the goals' gradient step of step() on the
         # error that step leaves (both on all of it: an offset corrected twice)
         theta_next = self.apply(theta, np.where(self.is_goal, 0.0, grad), hess)
-        left = E - np.einsum("krp,p->kr", D, (theta_next - theta)[self.learned])
-        goals = self.learned[self.is_goal]
-        theta_next[goals] += self.rates[self.is_goal] * self.gradient(J, left)[self.is_goal]
+        dw = (theta_next - theta)[self.learned]
+        left = E - np.einsum("krp,p->kr", D, dw)
+        dg = np.where(self.is_goal, self.rates * self.gradient(J, left), 0.0)
+        theta_next[self.learned] += float(goal_step_scale(NUMPY, grad, hess, dw, dg)) * dg
         return theta_next
 
     def error(self, U_fb: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from feltool.control.cycle import fel_sums, fel_update
+from feltool.control.cycle import fel_sums, fel_update, goal_step_scale
 from feltool.control.hold import hold_mean_columns
 from feltool.control.ops import CASADI
 from feltool.dynamics.symbolic import symbolic_rnea
@@ -143,7 +143,8 @@ def closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping, 
     theta_w = fel_update(CASADI, theta, (1 - pick) * g, H, rates, is_goal, "gauss_newton",
                          damping)
     g_goal = g_plain + g_transient - ca.mtimes(JD, theta_w - theta)
-    return theta_w + pick * rates * g_goal
+    dg = pick * rates * g_goal
+    return theta_w + goal_step_scale(CASADI, g, H, theta_w - theta, dg) * dg
 
 
 def fit_step(exp, lay, theta, sens, desired, kp, kd, Dall, E, rates, damping, frames: dict,
