@@ -2,10 +2,13 @@
 the walker model learner's ground slope (``learning.model.slope``).
 
 The full runs (150 cycles, 10 seeds, both walkers) are benchmarks/walk_unknown_world.py
-``--learner redesign``'s and docs/biped.md's; here short runs on the Python engine."""
+``--learner redesign``'s and docs/biped.md's; here short runs on the Python engine, and
+the shipped payload configs shortened as ``feltool run`` runs them (backend auto)."""
 
 from __future__ import annotations
 
+import csv
+import json
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -289,3 +292,34 @@ def test_the_blend_walks_from_the_old_design_to_the_new_one_on_one_curve():
         np.testing.assert_allclose(np.gradient(d["q"], dt)[5:-5], d["v"][5:-5], atol=2e-4)
         np.testing.assert_allclose(np.gradient(d["v"], dt)[5:-5], d["a"][5:-5], atol=2e-2)
         assert cfg["joints"]["knee"] == {}
+
+
+@pytest.mark.parametrize("walker,cycles,designed_at,measured", [
+    ("five_link_walker", 13, 10, 0.081),
+    ("three_link_walker", 19, 9, 0.037),
+], ids=["five_link", "three_link"])
+def test_the_shipped_payload_configs_redesign_and_meet_the_issues_bound(walker, cycles,
+                                                                         designed_at, measured,
+                                                                         tmp_path, capsys):
+    """``feltool run configs/gaits/<walker>_payload.yaml`` as shipped (the payload from
+    cycle 3, ``learning.redesign``), seed 0, shortened to the first cycles after the
+    re-design (the three-link walker's blended over 10 cycles): exit 0, every step walked,
+    one re-design at the cycle docs/biped.md gives, and the feedback already below issue 28's
+    0.15 of the change's cycle (measured 0.081 / 0.037 here; 0.0073 / 0.027 at cycle 150).
+    Without the re-design (``model_bias`` alone) it stays above 0.44 / 0.31 of it."""
+    out = tmp_path / "run"
+    code = main(["run", str(CONFIGS / "gaits" / f"{walker}_payload.yaml"), "--seeds", "0",
+                 "--cycles", str(cycles), "--out", str(out), "--no-progress", "--quiet",
+                 "--workers", "1"])
+    assert code == 0, capsys.readouterr().err
+    seed = json.loads((out / "summary.json").read_text())["seeds"][0]
+    assert seed["walking"]["walked"] and seed["walking"]["steps"] == 2 * cycles
+    assert seed["redesign"]["designed"] == 1 and seed["redesign"]["failed"] == 0
+    assert seed["redesign"]["designs"][0]["cycle"] == designed_at
+    with open(out / "metrics.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    fb = [float(r["fb_abs_mean_error"]) for r in rows]
+    assert fb[0] < 1e-6 and fb[1] < 1e-6  # the designed gait, before the payload
+    ratio = fb[-1] / fb[2]
+    assert ratio <= 0.15, ratio
+    assert ratio == pytest.approx(measured, abs=0.01)
