@@ -90,6 +90,9 @@ def test_bad_seed_lists_on_the_command_line(seeds, needle, tmp_path, capsys):
     ("sim.cycles=on", "sim.cycles: a boolean"),
     ("seeds=[3, 3]", "seed 3 given more than once"),
     ("sim.rate_hz=1e400", "sim.rate_hz"),
+    ("success.ratio_from=change", "success.ratio_from: change needs a world event"),
+    ("sim.step_s=-0.001", "sim.step_s"),
+    ("sim.feedforward=held", "sim.feedforward"),
 ])
 def test_bad_overrides_on_the_command_line(override, needle, tmp_path, capsys):
     """--set values are YAML too and get the same bounds; a small alias use stays fine."""

@@ -323,3 +323,7 @@ def test_the_shipped_payload_configs_redesign_and_meet_the_issues_bound(walker, 
     ratio = fb[-1] / fb[2]
     assert ratio <= 0.15, ratio
     assert ratio == pytest.approx(measured, abs=0.01)
+    # the summary's ratio from the world's change is that one, and success: checks it
+    assert seed["change_cycle"] == 3 and seed["fb_change"] == pytest.approx(fb[2], rel=1e-12)
+    assert seed["fb_ratio_change"] == pytest.approx(ratio, rel=1e-12)
+    assert seed["fb_ratio"] > 1e3  # over cycle 1, the designed gait's roundoff

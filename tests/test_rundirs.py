@@ -5,6 +5,7 @@ the truth (run and sweep)."""
 from __future__ import annotations
 
 import hashlib
+import csv
 import json
 import os
 import signal
@@ -193,6 +194,29 @@ def test_missing_the_success_criterion_exits_1(tmp_path):
     r = feltool("run", *SHORT, "--set", "success.fb_ratio_max=0.99", "--out",
                 str(tmp_path / "ok"))
     assert r.returncode == 0, r.stdout
+
+
+def test_the_success_ratio_from_the_world_s_change(tmp_path):
+    """``success.ratio_from: change``: the bound is on the last cycle over the cycle of the
+    first world event (a 0.2 kg tip payload at cycle 4, after the arm has learned), which the
+    summary gives per seed; over cycle 1 the same run's ratio is far below it."""
+    event = ["--set", "events=[{cycle: 4, kind: payload, frame: tip, mass: 0.2}]",
+             "--set", "success.ratio_from=change", "--cycles", "8"]
+    r = feltool("run", *SHORT, *event, "--set", "success.fb_ratio_max=0.01", "--out",
+                str(tmp_path / "s"))
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "fb of the world's change (cycle 4)" in r.stdout
+    seeds = json.loads((tmp_path / "s" / "summary.json").read_text())["seeds"]
+    rows = list(csv.DictReader(open(tmp_path / "s" / "metrics.csv")))
+    for s in seeds:
+        fb = [float(x["fb_abs_mean_error"]) for x in rows if int(x["seed"]) == s["seed"]]
+        assert s["change_cycle"] == 4 and s["fb_change"] == pytest.approx(fb[3], rel=1e-12)
+        assert s["fb_ratio_change"] == pytest.approx(fb[-1] / fb[3], rel=1e-12)
+        assert s["fb_ratio"] < 0.01 < s["fb_ratio_change"]
+    r = feltool("run", *SHORT, *event, "--set", "success.fb_ratio_max=0.9", "--out",
+                str(tmp_path / "ok"))
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "from the world's change at cycle 4" in r.stdout
 
 
 def test_a_sweep_with_a_diverging_point_exits_1_and_names_it(tmp_path):

@@ -153,6 +153,11 @@ def print_summary(summary: dict, out_dir: Path) -> None:
         conv = "-" if s["converged_cycle"] is None else str(s["converged_cycle"])
         print(f"  {s['seed']:>4} {s['cycles']:>6} {s['fb_initial']:>11.4g} {s['fb_final']:>10.3g} "
               f"{s['fb_ratio']:>8.2%} {conv:>9} {s['steps_per_s']:>9.0f}")
+    changed = [s for s in summary["seeds"] if s.get("fb_ratio_change") is not None]
+    if changed:
+        r = [s["fb_ratio_change"] for s in changed]
+        print(f"  from the world's change at cycle {changed[0]['change_cycle']}: fb_final / "
+              f"its cycle's feedback {min(r):.4g} to {max(r):.4g} over {len(r)} seeds")
     for s in summary["seeds"]:
         lim = s.get("limits")
         if isinstance(lim, dict) and (lim["joint_limit_steps"] or lim["torque_limit_steps"]):

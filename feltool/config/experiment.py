@@ -50,6 +50,11 @@ class SuccessConfig(Strict):
         "default: no bound.")
     converged: bool = Field(False, description="Require a converged_cycle (below 5 % of the "
                             "initial feedback for good) by the last cycle.")
+    ratio_from: Literal["first", "change"] = Field("first", description="The cycle whose error "
+        "feedback fb_ratio_max divides the last cycle's by: first = cycle 1 (fb_ratio); change "
+        "= the cycle of the first world event (events: payload, mass, slope; fb_ratio_change "
+        "in summary.json), for a run that starts on a gait exact for the known model, whose "
+        "first cycles have almost no feedback.")
 
 
 class RobotConfig(Strict):
@@ -180,7 +185,16 @@ class ExperimentConfig(Strict):
         out = [(where, f"{basis} basis functions but only {low} samples per cycle "
                        "(period_s * sim.rate_hz); use at most that many")
                for where, basis in bases.items() if basis > low]
+        if self.success.ratio_from == "change" and self.world_change_cycle is None:
+            out.append(("success.ratio_from", "change needs a world event (events: with kind "
+                                              "payload, mass or slope)"))
         return out + self._phase_problems()
+
+    @property
+    def world_change_cycle(self) -> int | None:
+        """The cycle at whose start the first world event changes the plant, or None."""
+        cycles = [ev.cycle for ev in self.events if ev.changes_world]
+        return min(cycles) if cycles else None
 
     def _phase_problems(self) -> list[tuple[str, str]]:
         phase, w = self.primitives.phase, self.walking

@@ -326,6 +326,10 @@ def seed_summary(exp: Experiment, seed: int, rows, reason: str | None, wall: flo
            "wall_s": round(wall, 4), "loop_s": round(loop, 6), "compile_s": round(compile_s, 4),
            "steps": steps, "steps_per_s": round(steps / loop, 1) if loop > 0 else None,
            "diverged": reason is not None}
+    change = exp.config.world_change_cycle
+    if change is not None and len(fb) >= change:  # the feedback from the world's change on
+        out.update(change_cycle=change, fb_change=fb[change - 1],
+                   fb_ratio_change=fb[-1] / fb[change - 1] if fb[change - 1] else None)
     if reason:
         out["diverged_reason"] = f"seed {seed}, cycle {len(rows) + 1}: {reason}"
     return out

@@ -442,13 +442,14 @@ class Redesigner:
         URDF, :func:`identified_urdf`; gravity tilted by ``slope``), its demos the loop's own
         periodic orbit there (:func:`feltool.gait.orbit.close_on_orbit`: on the collocation's
         knots the loop's feedback would be 0.5-0.8 N m), on the Python engine (the compiled
-        one would need a build of this model), without the run's world changes."""
+        one would need a build of this model), without the run's world changes (nor the run's
+        ``success:``, whose ratio may be from one of them)."""
         from feltool.runs.experiments import build_experiment
 
         c = self.cfg
         cfg = copy.deepcopy(raw)
         cfg["backend"] = "pinocchio"
-        for name in ("events", "plant"):
+        for name in ("events", "plant", "success"):  # the run's world and its criterion
             cfg.pop(name, None)
         cfg.setdefault("learning", {})["redesign"] = None
         with tempfile.TemporaryDirectory(prefix="feltool-redesign-") as tmp:

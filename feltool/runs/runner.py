@@ -545,10 +545,13 @@ def success_failure(exp: Experiment, entry: dict[str, Any]) -> str | None:
     if entry["diverged"]:
         return entry.get("diverged_reason") or "diverged"
     crit = exp.config.success
-    if crit.fb_ratio_max is not None and (entry["fb_ratio"] is None
-                                          or entry["fb_ratio"] > crit.fb_ratio_max):
-        ratio = "none" if entry["fb_ratio"] is None else f"{entry['fb_ratio']:.4g}"
-        return f"fb_final / fb_initial = {ratio} > success.fb_ratio_max = {crit.fb_ratio_max:g}"
+    key, what = ("fb_ratio", "fb_final / fb_initial") if crit.ratio_from == "first" else \
+        ("fb_ratio_change", f"fb_final / fb of the world's change (cycle "
+                            f"{exp.config.world_change_cycle})")
+    if crit.fb_ratio_max is not None and (entry.get(key) is None
+                                          or entry[key] > crit.fb_ratio_max):
+        ratio = "none" if entry.get(key) is None else f"{entry[key]:.4g}"
+        return f"{what} = {ratio} > success.fb_ratio_max = {crit.fb_ratio_max:g}"
     if crit.converged and entry["converged_cycle"] is None:
         return "never stayed below 5 % of the initial feedback (success.converged: true)"
     return None
