@@ -242,17 +242,21 @@ WORLD_PLANT = ("plant={payloads: [{frame: torso, mass: 8.0, com: [0.0, 0.0, 0.2]
     ["plant={bodies: {left_hip: {mass_scale: 1.2}, right_hip: {mass_scale: 1.2}}}",
      "events=[{cycle: 2, kind: mass, link: torso, mass: 48.0}]"],
     ["events=[{cycle: 2, kind: slope, angle: 0.03}]"],
-], ids=["payload_friction_gain", "payload_event", "mass_plant_and_event", "slope_event"])
-def test_a_physical_walker_in_a_world_the_model_does_not_know_is_the_python_engines(over):
+    ["events=[{cycle: 2, kind: mass, scale: 1.2}]"],
+    ["events=[{cycle: 2, kind: payload, frame: torso, mass: 3.2, com: [0.0, 0.0, 0.24]}]"],
+], ids=["payload_friction_gain", "payload_event", "mass_plant_and_event", "slope_event",
+        "every_mass_event", "five_link_payload_event"])
+def test_a_physical_walker_in_a_world_the_model_does_not_know_is_the_python_engines(over, request):
     """Plant != model on a physical walker (issue 28): a plant block (a payload with an
     offset, joint friction, a motor gain error), world events on top of it (payload, mass,
-    slope from cycle 2), on the compiled engine (one build, the world an input) give the
+    slope, every body's mass +20 % from cycle 2; the five-link walker's torso payload), on the compiled engine (one build, the world an input) give the
     Python engine's rows to 1e-8; the feedback rises in the changed world."""
     from feltool.engines.compiled.library import c_compiler
 
     if c_compiler() is None:
         pytest.skip("no C compiler (cc or gcc) on PATH: install gcc")
-    path = CONFIGS / "gaits" / "three_link_walker.yaml"
+    walker = "five_link" if "five_link" in request.node.callspec.id else "three_link"
+    path = CONFIGS / "gaits" / f"{walker}_walker.yaml"
     over = ["walking.poincare=false", "joints.base_pitch.learn.init=demo", *over]
     ref = run_seed(load_experiment(path, ["backend=pinocchio", *over]), 0, 3)
     comp = run_seed(load_experiment(path, ["backend=compiled", *over]), 0, 3)
