@@ -249,8 +249,9 @@ WORLD_PLANT = ("plant={payloads: [{frame: torso, mass: 8.0, com: [0.0, 0.0, 0.2]
 def test_a_physical_walker_in_a_world_the_model_does_not_know_is_the_python_engines(over, request):
     """Plant != model on a physical walker (issue 28): a plant block (a payload with an
     offset, joint friction, a motor gain error), world events on top of it (payload, mass,
-    slope, every body's mass +20 % from cycle 2; the five-link walker's torso payload), on the compiled engine (one build, the world an input) give the
-    Python engine's rows to 1e-8; the feedback rises in the changed world."""
+    slope, every body's mass +20 % from cycle 2; the five-link walker's torso payload), on
+    the compiled engine (one build, the world an input) give the Python engine's rows to
+    1e-8; the feedback rises in the changed world."""
     from feltool.engines.compiled.library import c_compiler
 
     if c_compiler() is None:

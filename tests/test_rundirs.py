@@ -4,8 +4,8 @@ the truth (run and sweep)."""
 
 from __future__ import annotations
 
-import hashlib
 import csv
+import hashlib
 import json
 import os
 import signal
