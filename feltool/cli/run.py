@@ -125,7 +125,9 @@ def _print_walking(summary: dict) -> None:
                 f"{fmt(w.get('speed_m_per_s'), '.3f')} m/s, CoT "
                 f"{fmt(w.get('cost_of_transport'), '.3f')}, torso RMS "
                 f"{fmt(w.get('stabilized_rms_last_rad'), '.3g')} rad, ratio "
-                f"{fmt(s.get('fb_ratio'), '.2%')}, Poincare rho {fmt(rho, '.3f')}")
+                + (f"{fmt(s.get('fb_ratio'), '.2%')}" if s.get("fb_ratio_change") is None else
+                   f"from the change {fmt(s['fb_ratio_change'], '.4g')}")
+                + f", Poincare rho {fmt(rho, '.3f')}")
         if "min_normal_force_N" in w:
             line += (f"; min F_n {fmt(w.get('min_normal_force_N'), '.4g')} N, max |F_t|/F_n "
                      f"{fmt(w.get('max_friction_ratio'), '.3f')}")
