@@ -236,3 +236,32 @@ def test_the_goal_steps_on_the_error_the_weights_leave():
                           ["period_s=0.5", "backend=compiled"])
     cycles = [run_seed(exp, s, 40).summary["converged_cycle"] for s in range(10)]
     assert None not in cycles and max(cycles) <= 5, cycles
+
+
+def test_the_goal_step_stops_at_the_loop_model_s_least_error():
+    """goal_step_scale against a bounded scalar minimisation of the predicted error
+    |e - D dw - s D dg|^2 (scipy), on random sensitivities; the same number from the CasADi
+    graph; a step the model says is too short is kept whole."""
+    from scipy.optimize import minimize_scalar
+
+    from feltool.control.cycle import goal_step_scale
+    from feltool.control.ops import CASADI, NUMPY
+
+    rng = np.random.default_rng(3)
+    n, nv, p = 40, 2, 6
+    D, E = rng.normal(size=(n, nv, p)), rng.normal(size=(n, nv))
+    grad, hess = np.einsum("kr,krp->p", E, D), np.einsum("krp,krs->ps", D, D)
+    dw = np.linalg.solve(hess, grad) * np.r_[np.ones(p - 1), 0.0] * 0.3
+    for scale in (10.0, 0.01):  # a step past the model's minimum, one short of it
+        dg = np.r_[np.zeros(p - 1), scale * (grad - hess @ dw)[-1]]
+
+        def err(s, dg=dg):
+            return np.sum((E - np.einsum("krp,p->kr", D, dw + s * dg)) ** 2)
+
+        best = minimize_scalar(err, bounds=(0.0, 1.0), method="bounded",
+                               options={"xatol": 1e-10}).x
+        s = float(goal_step_scale(NUMPY, grad, hess, dw, dg))
+        assert s == pytest.approx(best, abs=1e-7)
+        assert (s < 1.0) if scale == 10.0 else (s == 1.0)
+        sym = goal_step_scale(CASADI, ca.DM(grad), ca.DM(hess), ca.DM(dw), ca.DM(dg))
+        assert float(ca.DM(sym)) == pytest.approx(s, rel=1e-12)

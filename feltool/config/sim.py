@@ -36,7 +36,7 @@ class SimConfig(Strict):
         "hold [t_k, t_k+1] by the trapezoid rule, (u_ff(t_k) + u_ff(t_k+1)) / 2, which removes "
         "the held torque's half-step lag: the error feedback that sampling leaves then falls "
         "with the square of the control step instead of with the step (docs/theory.md). Arms "
-        "learning per cycle on the clock phase.")
+        "learning per cycle (not walkers, per-step or model learning, the adaptive phase).")
     integrator: Literal["semi_implicit_euler", "explicit_euler"] = Field(
         "semi_implicit_euler", description="Integration scheme of the forward model: "
         "semi-implicit (symplectic) Euler, v += dt a; q += dt v, or explicit Euler.")
