@@ -185,10 +185,29 @@ class ExperimentConfig(Strict):
         out = [(where, f"{basis} basis functions but only {low} samples per cycle "
                        "(period_s * sim.rate_hz); use at most that many")
                for where, basis in bases.items() if basis > low]
+        out += self._hold_problems()
         if self.success.ratio_from == "change" and self.world_change_cycle is None:
             out.append(("success.ratio_from", "change needs a world event (events: with kind "
                                               "payload, mass or slope)"))
         return out + self._phase_problems()
+
+    def _hold_problems(self) -> list[tuple[str, str]]:
+        """``sim.feedforward: hold_mean`` is for an arm learning per cycle (or learning
+        nothing): the held mean needs the cycle's desired trajectory before the cycle runs
+        (feltool.control.hold)."""
+        if self.sim.feedforward != "hold_mean":
+            return []
+        L = self.learning
+        why = [what for bad, what in (
+            (self.walking is not None or self.actuation is not None, "a walker"),
+            (L.model is not None, "model learning"),
+            (self.disturbances is not None, "disturbances"),
+            (L.update not in ("gradient", "gauss_newton"), f"update: {L.update}"),
+            (L.step != "per_cycle", "learning.step: per_step"),
+            (self.primitives.phase == "adaptive", "the adaptive phase"),
+        ) if bad]
+        return [("sim.feedforward", "hold_mean is for arms learning per cycle; not with "
+                 + ", ".join(why))] if why else []
 
     @property
     def world_change_cycle(self) -> int | None:

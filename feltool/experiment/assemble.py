@@ -399,29 +399,9 @@ def assemble_experiment(raw: dict[str, Any], source: Path | None = None,
                         "substeps": cfg.sim.substeps,
                         "semi_implicit": cfg.sim.integrator == "semi_implicit_euler",
                         "q_filter_hz": L.q_filter_hz, "remove_transient": L.remove_transient}
-    if cfg.sim.feedforward == "hold_mean":
-        refuse_hold_mean(cfg, src)
     if L.sensitivity == "casadi" and learner.n_learned:
         learner.set_casadi_jacobian(CasadiJacobian(robot.model, primitives, learner.learned))
     return exp
-
-
-def refuse_hold_mean(cfg: ExperimentConfig, src: str | None) -> None:
-    """``sim.feedforward: hold_mean`` is for an arm learning per cycle (or learning nothing):
-    the held mean needs the cycle's desired trajectory before the cycle runs. The closed-loop
-    fit learns with the held mean's sensitivity; the feedforward fit and the gradient keep the
-    samples' (half a step early, as the sampled feedforward is)."""
-    why = [what for bad, what in (
-        (cfg.walking is not None or cfg.actuation is not None, "a walker"),
-        (cfg.learning.model is not None, "model learning"),
-        (cfg.disturbances is not None, "disturbances"),
-        (cfg.learning.update not in FEL_UPDATES, f"update: {cfg.learning.update}"),
-        (cfg.learning.step != "per_cycle", "learning.step: per_step"),
-        (cfg.primitives.phase == "adaptive", "the adaptive phase"),
-    ) if bad]
-    if why:
-        raise ConfigError([("sim.feedforward", "hold_mean is for arms learning per cycle; not "
-                            "with " + ", ".join(why))], src)
 
 
 def closed_loop_fit(cfg: ExperimentConfig, hybrid, model_learner, dynamics) -> bool:
