@@ -92,6 +92,7 @@ def test_bad_seed_lists_on_the_command_line(seeds, needle, tmp_path, capsys):
     ("sim.rate_hz=1e400", "sim.rate_hz"),
     ("success.ratio_from=change", "success.ratio_from: change needs a world event"),
     ("sim.step_s=-0.001", "sim.step_s"),
+    ("sim.step_s=1e-7", "sim.step_s 1e-07 s at sim.rate_hz 100 gives 100000 sub-steps"),
     ("sim.feedforward=held", "sim.feedforward"),
 ])
 def test_bad_overrides_on_the_command_line(override, needle, tmp_path, capsys):

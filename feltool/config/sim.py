@@ -16,6 +16,9 @@ from feltool.bounds import (
 )
 from feltool.config.base import PositiveFloat, Strict
 
+#: The most integration sub-steps of one control step.
+MAX_SUBSTEPS = 1000
+
 
 class SimConfig(Strict):
     """How the closed loop is simulated."""
@@ -23,7 +26,7 @@ class SimConfig(Strict):
     rate_hz: PositiveFloat = Field(100.0, le=MAX_RATE_HZ, description="Control and sampling "
                                    "rate in [Hz]; one feedforward/feedback sample per step; at "
                                    f"most {MAX_RATE_HZ:g}.")
-    substeps: int = Field(1, ge=1, le=1000, description="Integration steps per control step "
+    substeps: int = Field(1, ge=1, le=MAX_SUBSTEPS, description="Integration steps per control step "
                           "(the torque is held constant over them); with step_s: derived from it.")
     step_s: PositiveFloat | None = Field(None, le=1.0, description="The plant's integration "
         "step in [s]: each control step is integrated in ceil(1 / (rate_hz step_s)) equal "
@@ -71,4 +74,9 @@ class SimConfig(Strict):
             return raw
         if not (0 < rate < math.inf and 0 < step < math.inf):
             return raw
-        return {**raw, "substeps": max(1, math.ceil(1.0 / (rate * step) - 1e-9))}
+        substeps = max(1, math.ceil(1.0 / (rate * step) - 1e-9))
+        if substeps > MAX_SUBSTEPS:
+            raise ValueError(f"sim.step_s {step:g} s at sim.rate_hz {rate:g} gives {substeps} "
+                             f"sub-steps per control step; at most {MAX_SUBSTEPS} (a step of at "
+                             f"least {1.0 / (rate * MAX_SUBSTEPS):g} s)")
+        return {**raw, "substeps": substeps}
