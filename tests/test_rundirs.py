@@ -217,6 +217,11 @@ def test_the_success_ratio_from_the_world_s_change(tmp_path):
                 str(tmp_path / "ok"))
     assert r.returncode == 0, r.stdout + r.stderr
     assert "from the world's change at cycle 4" in r.stdout
+    # a run that ends before the change cannot meet it, and says why
+    r = feltool("run", *SHORT, *event, "--cycles", "3", "--set", "success.fb_ratio_max=0.9",
+                "--out", str(tmp_path / "short"))
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "before the world's change at cycle 4" in r.stdout
 
 
 def test_a_sweep_with_a_diverging_point_exits_1_and_names_it(tmp_path):

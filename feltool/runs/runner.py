@@ -548,6 +548,9 @@ def success_failure(exp: Experiment, entry: dict[str, Any]) -> str | None:
     key, what = ("fb_ratio", "fb_final / fb_initial") if crit.ratio_from == "first" else \
         ("fb_ratio_change", f"fb_final / fb of the world's change (cycle "
                             f"{exp.config.world_change_cycle})")
+    if crit.fb_ratio_max is not None and key == "fb_ratio_change" and "change_cycle" not in entry:
+        return (f"the seed ended after {entry['cycles']} cycles, before the world's change at "
+                f"cycle {exp.config.world_change_cycle} that success.ratio_from: change measures from")
     if crit.fb_ratio_max is not None and (entry.get(key) is None
                                           or entry[key] > crit.fb_ratio_max):
         ratio = "none" if entry.get(key) is None else f"{entry[key]:.4g}"
