@@ -86,7 +86,8 @@ def closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping, 
     """The learned parameters after the closed-loop fit's step, in the graph: ``sens`` per
     learned joint ``[Xq, Xv, Xa]`` (each ``(n, P_l)``), ``desired`` ``(Qd, Vd, Ad)`` (each
     ``(nv, n)``), ``E`` the error torques ``(nv, n)``, ``g_plain`` the gradient of eq. 3.6 (the
-    goals keep its step); ``frames`` the law's symbolic frame angles; ``mask`` ``(1, n)`` the
+    goals keep its step; None with ``sim.feedforward: hold_mean``: from the held
+    sensitivity); ``frames`` the law's symbolic frame angles; ``mask`` ``(1, n)`` the
     steps the cycle has (cycles of changing length: a step it does not have leaves the
     sensitivity as it is and counts nowhere), None: all; ``dx`` ``(2nv, 1)`` the state's change
     over the cycle (with ``learning.remove_transient`` the fit is to the error without the
@@ -157,7 +158,9 @@ def fit_step(exp, lay, theta, sens, desired, kp, kd, Dall, E, rates, damping, fr
              for l in range(L)]
     if mask is not None:
         E = E * ca.repmat(mask, lay.nv, 1)
-    g_plain, _ = fel_sums(CASADI, sens, deriv, E, None)
+    # the held feedforward's gradient comes from its own sensitivity, in closed_loop_step
+    g_plain = fel_sums(CASADI, sens, deriv, E, None)[0] \
+        if exp.config.sim.feedforward == "sample" else None
     return closed_loop_step(exp, lay, theta, sens, desired, kp, kd, E, rates, damping,
                             g_plain, frames, mask, dx)
 
