@@ -74,6 +74,14 @@ class LeggedModel:
         B[6:, :] = np.eye(self.nv - 6)
         return B
 
+    def leg(self, foot: str) -> list[int]:
+        """The velocity indices of the joints between the base and the ``foot`` (its leg)."""
+        m, j, idx = self.model, self.model.frames[self.feet[foot]].parentJoint, []
+        while j > 1:
+            idx.append(m.joints[j].idx_v)
+            j = m.parents[j]
+        return sorted(idx)
+
     def foot_positions(self, q: np.ndarray) -> np.ndarray:
         """``(n_feet, 3)`` positions of the feet's contact points in the world, in [m]."""
         pin.framesForwardKinematics(self.model, self.data, q)
@@ -207,3 +215,17 @@ def load_solo12(effort: float | None = None) -> LeggedModel:
     robot = erd.load("solo12")
     return legged_model(robot.model, SOLO12_FEET, q0=np.array(robot.q0), effort=effort,
                         name="solo12")
+
+
+def with_payload(legged: LeggedModel, mass: float, offset=(0.0, 0.0, 0.0),
+                 size=(0.1, 0.1, 0.02)) -> pin.Model:
+    """A copy of the robot's model carrying a payload on its base: a solid box of ``mass``
+    [kg] and ``size`` [m] (x, y, z), its centre at ``offset`` [m] in the base's frame (an
+    unknown world for feedback error learning; the known model stays ``legged.model``)."""
+    if not mass >= 0.0:
+        raise RobotError(f"a payload of {mass} kg")
+    model = pin.Model(legged.model)
+    box = pin.Inertia.FromBox(float(mass), *map(float, size))
+    placed = pin.SE3(np.eye(3), np.asarray(offset, float)).act(box)
+    model.inertias[1] = model.inertias[1] + placed
+    return model

@@ -64,6 +64,31 @@ class StandLog:
     not_walking: str | None = None
     kind: str | None = None
     touchdowns: list = field(default_factory=list)
+    end: StandState | None = None
+
+
+class _Stop(Exception):
+    """Ends a rollout at a touchdown (``until_touchdown``)."""
+
+
+@dataclass
+class StandState:
+    """Where a rollout is, to resume it (:func:`stand`'s ``start``, :attr:`StandLog.end`).
+
+    Attributes:
+        t: Time [s] (a control step's).
+        q, v: The state ``(nq,)``, ``(nv,)``.
+        stance: The feet on the ground.
+        anchors: ``{foot: (3,)}`` where each stance foot is held [m].
+        carry: An impact window reaching into this control step [s].
+    """
+
+    t: float
+    q: np.ndarray
+    v: np.ndarray
+    stance: tuple[str, ...]
+    anchors: dict
+    carry: float = 0.0
 
 
 def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
@@ -72,7 +97,9 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
           plant: pin.Model | None = None,
           schedule: Callable[[float], tuple[str, ...]] | None = None,
           on_touchdown: Callable[[float, tuple[str, ...]], None] | None = None,
-          impact_window: float = 0.0) -> StandLog:
+          impact_window: float = 0.0, start: StandState | None = None,
+          until: Callable[[float], bool] | None = None,
+          until_touchdown: Callable[[float], bool] | None = None) -> StandLog:
     """Roll the robot out on its feet for ``duration`` [s].
 
     Args:
@@ -84,7 +111,9 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
         substeps: Runge-Kutta sub-steps per control step.
         checks: The contact checks (default: ``ContactChecks(effort=legged.effort)``).
         push: A push on the base (the plant feels it, the controller does not).
-        plant: The plant's model when it differs from the known one (same joints and frames).
+        plant: The plant's model when it differs from the known one (same joints and frames),
+            or ``t [s] ->`` that model (None: the known one), asked at every control step: a
+            world that changes during the rollout (a payload put on at an event).
         schedule: ``t [s] ->`` the feet meant to be in stance (default: all, always). A foot it
             drops is released (:func:`~feltool.walking.legged.events.check_release`); a foot it
             names that is in the air joins the stance at its touchdown
@@ -96,15 +125,37 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
             (the contact event triggers a control update; its torques hold until the next one).
         impact_window: Resolve each touchdown's impact over a Moreau-Jean step of this length
             [s] (the stance feet's loads act in it), 0 for the instantaneous impact.
+        start: Resume from this state (:attr:`StandLog.end` of an earlier rollout, or one
+            made for it) instead of ``q0``, ``v0`` at t = 0 on every foot; ``duration`` counts
+            from its time.
+        until: ``t [s] -> bool``, asked after every control step: True ends the rollout there
+            (its :attr:`StandLog.end` is the state at ``t``).
+        until_touchdown: ``t [s] -> bool``, asked at each touchdown once ``on_touchdown`` has
+            run: True ends the rollout at the touchdown, just after its impact and before the
+            control update (:attr:`StandLog.end` has the stance the impact left; resumed, the
+            feet the schedule no longer wants are released at once).
     """
     chk = ContactChecks(effort=legged.effort) if checks is None else checks
-    contact = LeggedContact(legged, plant)
+    worlds: dict = {}
+
+    def world(t: float) -> LeggedContact:
+        model = plant(t) if callable(plant) else plant
+        if id(model) not in worlds:
+            worlds[id(model)] = (model, LeggedContact(legged, model))
+        return worlds[id(model)][1]
+
+    t_start = 0.0 if start is None else float(start.t)
+    contact = world(t_start)
     names = list(legged.feet)
-    stance = tuple(names)
-    pos0 = contact.positions(q0)
-    anchor = dict(zip(names, pos0))
-    q, v = contact.hold(np.array(q0, float), np.zeros(legged.nv) if v0 is None
-                        else np.array(v0, float), stance, pos0)
+    if start is None:
+        stance = tuple(names)
+        pos0 = contact.positions(q0)
+        anchor = dict(zip(names, pos0))
+        q, v = contact.hold(np.array(q0, float), np.zeros(legged.nv) if v0 is None
+                            else np.array(v0, float), stance, pos0)
+    else:
+        stance, anchor = tuple(start.stance), {f: np.array(p) for f, p in start.anchors.items()}
+        q, v = np.array(start.q, float), np.array(start.v, float)
     B, dt = legged.selection(), 1.0 / rate_hz
     h = dt / substeps
     n = int(round(duration * rate_hz))
@@ -120,10 +171,14 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
         Jb = pin.getJointJacobian(contact.model, contact.data, 1, pin.LOCAL_WORLD_ALIGNED)
         return Jb.T @ np.r_[push.force, push.torque]
 
-    carry = 0.0  # an impact's window reaching past its sub-step, taken from the next one
+    # an impact's window reaching past its sub-step, taken from the next one
+    carry = 0.0 if start is None else start.carry
+    section = None
+    t = t_start
     try:
         for i in range(n):
-            t = i * dt
+            t = t_start + i * dt
+            contact = world(t)
             wanted = stance if schedule is None else \
                 tuple(f for f in names if f in schedule(t))
             released = tuple(f for f in stance if f not in wanted)
@@ -164,6 +219,10 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                         touchdowns.append((ts + used, landed))
                         if on_touchdown is not None and schedule is not None:
                             on_touchdown(ts + used, landed)
+                            if until_touchdown is not None and until_touchdown(ts + used):
+                                section = StandState(ts + used, q, v, stance,
+                                                     {f: anchor[f] for f in stance})
+                                raise _Stop
                             wanted = tuple(f for f in names if f in schedule(ts + used))
                             gone = tuple(f for f in stance if f not in wanted)
                             stance = tuple(f for f in stance if f in wanted)
@@ -183,6 +242,11 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                 carry = max(0.0, done - h)
             if not np.all(np.isfinite(q)) or not np.all(np.isfinite(v)):
                 raise NotWalking(f"the state is not finite at t = {t:.4g} s", "diverged")
+            t = t_start + (i + 1) * dt
+            if until is not None and until(t):
+                break
+    except _Stop:
+        pass
     except NotWalking as exc:
         reason, kind = str(exc), exc.kind
     Q = np.array(rec["q"]).reshape(-1, legged.nq)
@@ -191,4 +255,6 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
     return StandLog(t=np.array(rec["t"]), q=Q, v=np.array(rec["v"]), u=np.array(rec["u"]),
                     forces=np.array(rec["forces"]), height=Q[:, 2], roll=rpy[:, 0],
                     pitch=rpy[:, 1], stats=st, not_walking=reason, kind=kind,
-                    touchdowns=touchdowns)
+                    touchdowns=touchdowns,
+                    end=None if reason else section or StandState(
+                        t, q, v, stance, {f: anchor[f] for f in stance}, carry))
