@@ -176,16 +176,21 @@ class StandingController:
             MJ = Minv @ J.T
             Lam = np.linalg.inv(J @ MJ)
             W = Minv - MJ @ Lam @ MJ.T
+            self._absorbed = (J, Lam @ MJ.T)
             lam0 = Lam @ (MJ.T @ b - gamma)
             L = -Lam @ (MJ.T @ B)
         else:
             W, lam0, L = Minv, np.zeros(0), np.zeros((0, k))
+            self._absorbed = None
         H = B.T @ W @ B
         H = 0.5 * (H + H.T)
         c = B.T @ W @ tau_w
         lim = np.minimum(self.legged.effort, 1e6)
         G, h = self._cones(lam0, L, n)
-        u, exact = self._exact(H, c, G, h, lim)
+        ev, V = np.linalg.eigh(H)
+        keep = ev > self.rank_tol * max(ev.max(), 1e-300)
+        self._metric = (B.T @ W, V[:, keep], ev[keep])
+        u, exact = self._exact(ev, V, keep, c, G, h, lim)
         solved = u is not None
         if u is None:  # the wanted accelerations break a cone or a limit: least squares in them
             self.inexact += 1
@@ -200,13 +205,29 @@ class StandingController:
         u = np.asarray(u, float)
         return Allocation(u, (lam0 + L @ u).reshape(n, 3), solved, exact)
 
-    def _exact(self, H, c, G, h, lim):
+    def motor_share(self, tau: np.ndarray) -> np.ndarray:
+        """``(k,)`` [N m]: the least-norm motor torques that give a generalized force ``tau``
+        ``(nv,)``'s constrained accelerations, :math:`(B^\\top W B)^+ B^\\top W \\tau`, in the
+        state and stance of the last :meth:`allocate` (what the motors do for ``tau``; the
+        allocation is linear in it while no cone or limit binds)."""
+        BW, Vr, ev = self._metric
+        return Vr @ ((Vr.T @ (BW @ tau)) / ev)
+
+    def effective(self, tau: np.ndarray) -> np.ndarray:
+        """``(nv,)``: the part of a generalized force ``tau`` that moves the robot under the
+        stance contacts of the last :meth:`allocate`, :math:`M W \\tau = \\tau - J^\\top
+        (J M^{-1} J^\\top)^{-1} J M^{-1} \\tau` (the rest, :math:`J^\\top \\lambda`, the
+        ground takes: it changes only the contact forces)."""
+        if self._absorbed is None:
+            return np.array(tau, float)
+        J, LMJ = self._absorbed
+        return tau - J.T @ (LMJ @ tau)
+
+    def _exact(self, s, V, keep, c, G, h, lim):
         """The allocations that give the wanted constrained accelerations exactly, ``u = u_0 + N
-        z`` (``u_0`` the least-norm one, ``N`` the null space of :math:`B^\top W B`), the
-        smallest within the cones and limits: a QP in ``z`` (identity Hessian). None when there
-        is none."""
-        s, V = np.linalg.eigh(H)
-        keep = s > self.rank_tol * max(s.max(), 1e-300)
+        z`` (``u_0`` the least-norm one, ``N`` the null space of :math:`B^\\top W B`, whose
+        eigenvalues ``s`` and vectors ``V`` are given, ``keep`` its range), the smallest within
+        the cones and limits: a QP in ``z`` (identity Hessian). None when there is none."""
         Vr, N = V[:, keep], V[:, ~keep]
         u0 = Vr @ ((Vr.T @ c) / s[keep])
         if N.shape[1] == 0:

@@ -1,0 +1,76 @@
+"""Feedback error learning on the Solo-12 trot in an unknown world (docs/legged.md, issue 32):
+the trot of feltool.walking.legged.trot with the learned feedforward of
+feltool.walking.legged.learn, a payload of ``--payload`` of the robot's mass put on its base at
+the start of cycle ``--change`` (the controller's model does not know it), every contact check
+on (normal force > 0, circular friction cone mu = 0.7, impulses pushing and in the cone, no foot
+below the ground, released feet accelerating up, 2.7 N m motors).
+
+Per seed (a random start velocity of the base and joints, as benchmarks/legged_trot.py): whether
+every step is physical (or the check that stops it, and when), the summed feedback -- the RMS
+over a cycle of the feedback's share of the motor torques, in [N m] -- of the cycle before the
+change, of the change's cycle and of the last one, the last over the change's (the issue's
+ratio) and over the one before (how much of the payload's feedback is left), the worst roll and
+pitch, least normal force, largest friction ratio and torque, the forward speed over the second
+half, and the wall time.
+
+Usage: ``python benchmarks/legged_fel.py [--cycles 150] [--seeds 0-9] [--payload 0.2]
+[--change 3] [--no-learning]``
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from feltool.walking.legged.learn import learn_trot  # noqa: E402
+from feltool.walking.legged.model import load_solo12  # noqa: E402
+
+
+def seeds(text: str) -> list[int]:
+    a, _, b = text.partition("-")
+    return list(range(int(a), int(b or a) + 1))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cycles", type=int, default=150)
+    ap.add_argument("--seeds", type=seeds, default=seeds("0-9"))
+    ap.add_argument("--payload", type=float, default=0.2, help="fraction of the robot's mass")
+    ap.add_argument("--change", type=int, default=3, help="the cycle the payload is put on")
+    ap.add_argument("--no-learning", action="store_true")
+    ap.add_argument("--plant", choices=("pinocchio", "mujoco"), default="pinocchio")
+    args = ap.parse_args()
+    solo = load_solo12(effort=2.7)
+    print(f"Solo-12 ({solo.mass:.3f} kg), payload {args.payload:.0%} from cycle {args.change}, "
+          f"{args.cycles} cycles, learning {'off' if args.no_learning else 'on'}, "
+          f"plant {args.plant}")
+    print("| seed | result | fb before [N m] | fb change | fb last | last/change | "
+          "last/before | max roll / pitch [rad] | min f_n [N] | max f_t/f_n | max |u| [N m] "
+          "| v 2nd half [m/s] | wall [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        t0 = time.perf_counter()
+        run = learn_trot(solo, cycles=args.cycles, payload=args.payload, change=args.change,
+                         seed=seed, learn=not args.no_learning, plant=args.plant)
+        wall = time.perf_counter() - t0
+        k = args.change
+        fb = np.r_[run.feedback, np.full(max(0, k + 1 - len(run.feedback)), np.nan)]
+        done = len(run.feedback) == args.cycles
+        result = "physical, all cycles" if done else f"`{run.kind}` at {run.log.t[-1]:.2f} s"
+        ratio, before = fb[-1] / fb[k], fb[-1] / fb[k - 1]
+        st = run.log.stats
+        print(f"| {seed} | {result} | {fb[k - 1]:.4f} | {fb[k]:.4f} | {fb[-1]:.4f} | "
+              f"{ratio:.3f} | {before:.3f} | {np.abs(run.log.roll).max():.4f} / "
+              f"{np.abs(run.log.pitch).max():.4f} | {st.min_normal_force:.3f} | "
+              f"{st.max_friction_ratio:.3f} | {st.max_torque:.2f} | {run.speed:.3f} | "
+              f"{wall:.0f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
