@@ -1,0 +1,102 @@
+"""Solo-12 with MuJoCo as the plant (issue 32): the compiled URDF's dynamics against Pinocchio's
+(coordinates both ways, ABA, a free flight integrated independently, a payload), standing, and a
+short trot in MuJoCo's soft contacts under the rigid model's controllers (the 20 s runs are
+benchmarks/legged_trot_mujoco.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.integrate import solve_ivp
+
+from feltool.walking.legged.model import load_solo12
+from feltool.walking.legged.mujoco_plant import LeggedMujoco, Payload, with_payload
+
+mujoco = pytest.importorskip("mujoco")
+
+
+@pytest.fixture(scope="module")
+def solo():
+    return load_solo12(effort=2.7)
+
+
+def _random_state(solo, seed):
+    rng = np.random.default_rng(seed)
+    q = pin.integrate(solo.model, solo.q0, 0.5 * rng.standard_normal(solo.nv))
+    q[:3] += [0.1, -0.2, 1.0]
+    return q, rng.standard_normal(solo.nv), rng
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_coordinates_both_ways_and_the_accelerations_are_pinocchios(solo, seed):
+    """q, v -> qpos, qvel -> q, v is the identity; MuJoCo's world-frame linear velocity is the
+    base frame's rotated; ``mj_forward``'s accelerations, under random motor torques, are
+    ``pin.aba``'s (1e-8) -- the URDF's inertias compiled exactly, the joints matched."""
+    q, v, rng = _random_state(solo, seed)
+    p = LeggedMujoco(solo, floor=False)
+    qpos, qvel = p.to_mujoco(q, v)
+    R = pin.XYZQUATToSE3(q[:7]).rotation
+    np.testing.assert_allclose(qpos[3:7], np.r_[q[6], q[3:6]], atol=1e-15)
+    np.testing.assert_allclose(qvel[:3], R @ v[:3], atol=1e-14)
+    q2, v2 = p.to_pinocchio(qpos, qvel)
+    np.testing.assert_allclose(q2, q, atol=1e-14)
+    np.testing.assert_allclose(v2, v, atol=1e-14)
+    u = rng.uniform(-2.7, 2.7, 12)
+    p.set_state(q, v)
+    p.data.qfrc_applied[:] = p.generalized(u)
+    mujoco.mj_forward(p.model, p.data)
+    a = pin.aba(solo.model, solo.data, q, v, np.r_[np.zeros(6), u])
+    np.testing.assert_allclose(p.acceleration(), a, atol=1e-8 * max(1.0, np.abs(a).max()))
+    np.testing.assert_allclose(p.foot_points(), solo.foot_positions(q), atol=1e-14)
+
+
+def _pinocchio_flight(model, q, v, tau, duration):
+    """Pinocchio's free flight by ``solve_ivp`` (DOP853, 1e-11): the base's position rate R v,
+    its quaternion's 1/2 quat (x) (omega, 0), joint rates, ``pin.aba``."""
+    data = model.createData()
+    nq = model.nq
+
+    def rhs(_, y):
+        qq, vv = y[:nq].copy(), y[nq:]
+        qq[3:7] /= np.linalg.norm(qq[3:7])
+        x, yq, z, w = qq[3:7]
+        wx, wy, wz = vv[3:6]
+        dq = np.empty(nq)
+        dq[:3] = pin.Quaternion(w, x, yq, z).toRotationMatrix() @ vv[:3]
+        dq[3:7] = 0.5 * np.array([w * wx + yq * wz - z * wy, w * wy + z * wx - x * wz,
+                                  w * wz + x * wy - yq * wx, -x * wx - yq * wy - z * wz])
+        dq[7:] = vv[6:]
+        return np.r_[dq, pin.aba(model, data, qq, vv, tau)]
+
+    sol = solve_ivp(rhs, (0.0, duration), np.r_[q, v], method="DOP853", rtol=1e-11,
+                    atol=1e-12)
+    y = sol.y[:, -1]
+    qe = y[:nq].copy()
+    qe[3:7] /= np.linalg.norm(qe[3:7])
+    return qe, y[nq:]
+
+
+@pytest.mark.parametrize("payload", [None, Payload(0.5, (0.05, -0.02, 0.03))])
+def test_a_free_flight_is_pinocchios(solo, payload):
+    """0.05 s of free flight (gravity, random state and motor torques, no floor) by MuJoCo's RK4
+    at 0.1 ms against Pinocchio's ABA integrated by ``solve_ivp``: the states agree to 1e-7
+    (positions [m, rad], velocities [m/s, rad/s]); with a payload, MuJoCo's payload body and
+    :func:`with_payload`'s inertia are the same world."""
+    q, v, rng = _random_state(solo, 7)
+    tau = np.r_[np.zeros(6), rng.uniform(-1.0, 1.0, 12)]
+    p = LeggedMujoco(solo, timestep=1e-4, integrator="rk4", floor=False, payload=payload)
+    p.set_state(q, v)
+    for _ in range(500):
+        p.step(p.generalized(tau[6:]))
+    qm, vm = p.state()
+    known = with_payload(solo, payload)
+    qe, ve = _pinocchio_flight(known.model, q, v, tau, 0.05)
+    assert np.abs(pin.difference(solo.model, qe, qm)).max() < 1e-7
+    assert np.abs(vm - ve).max() < 1e-7
+    if payload is not None:  # the payload matters at this precision
+        qn, _ = _pinocchio_flight(solo.model, q, v, tau, 0.05)
+        assert np.abs(pin.difference(solo.model, qn, qm)).max() > 1e-4
+        assert known.mass == pytest.approx(solo.mass + 0.5)
+        assert float(np.sum(p.model.body_mass)) == pytest.approx(known.mass, abs=1e-12)
