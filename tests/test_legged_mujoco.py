@@ -11,8 +11,11 @@ import pinocchio as pin
 import pytest
 from scipy.integrate import solve_ivp
 
+from feltool.walking.legged.control import StandingController
 from feltool.walking.legged.model import load_solo12
 from feltool.walking.legged.mujoco_plant import LeggedMujoco, Payload, with_payload
+from feltool.walking.legged.mujoco_stand import stand_mujoco
+from feltool.walking.legged.trot import PAIRS, TrotController, TrotGait
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -100,3 +103,57 @@ def test_a_free_flight_is_pinocchios(solo, payload):
         assert np.abs(pin.difference(solo.model, qn, qm)).max() > 1e-4
         assert known.mass == pytest.approx(solo.mass + 0.5)
         assert float(np.sum(p.model.body_mass)) == pytest.approx(known.mass, abs=1e-12)
+
+
+def test_solo12_stands_in_mujoco(solo):
+    """1 s in MuJoCo under the standing controller: every check of the MuJoCo loop passes (no
+    foot slides 2 mm, none 2 mm deep, each foot's 5 ms normal force above 0), the base level
+    (1e-5 rad) at its height within 0.1 mm (MuJoCo's soft floor gives a few hundredths of a
+    millimetre), the feet together carrying m g to 1e-3, none creeping 0.1 mm."""
+    q0 = solo.standing()
+    log = stand_mujoco(solo, StandingController(solo, q0), q0, duration=1.0)
+    assert log.not_walking is None, log.not_walking
+    assert len(log.t) == 1000 and log.stats.min_normal_force > 5.0
+    assert np.abs(log.height - q0[2]).max() < 1e-4
+    assert np.abs(log.roll).max() < 1e-5 and np.abs(log.pitch).max() < 1e-5
+    weight = solo.mass * np.linalg.norm(solo.model.gravity.linear)
+    assert log.forces[-1, :, 2].sum() == pytest.approx(weight, rel=1e-3)
+    q, _ = log.q[-1], log.v[-1]
+    creep = solo.foot_positions(q)[:, :2] - solo.foot_positions(q0)[:, :2]
+    assert np.abs(creep).max() < 1e-4
+
+
+def test_a_payload_pulls_the_stand_down_but_it_stands(solo):
+    """20 % of the mass on the base in MuJoCo only (the controller does not know it): it still
+    stands, lower (the height PD gives way), its feet carrying the payload too."""
+    q0 = solo.standing()
+    log = stand_mujoco(solo, StandingController(solo, q0), q0, duration=0.5,
+                       payload=Payload(0.2 * solo.mass, (0.02, 0.0, 0.0)))
+    assert log.not_walking is None, log.not_walking
+    weight = 1.2 * solo.mass * np.linalg.norm(solo.model.gravity.linear)
+    assert log.forces[-1, :, 2].sum() == pytest.approx(weight, rel=1e-2)
+    assert log.height[-1] < q0[2] - 1e-3
+
+
+def test_solo12_trots_in_mujoco(solo):
+    """1.2 s of the shipped trot (0.3 m/s ramped in 0.3 s) with MuJoCo as the plant: every
+    check of the loop passes, the pairs alternate, every foot lifts above 2 cm, roll and pitch
+    stay below 0.05 rad, and the base follows the desired one to 2 cm."""
+    g = TrotGait(speed=0.3, ramp=0.3)
+    q0 = solo.standing()
+    ctl = TrotController(solo, q0, gait=g)
+    log = stand_mujoco(solo, ctl, q0, duration=1.2, schedule=g.schedule,
+                       on_touchdown=g.touchdown)
+    assert log.not_walking is None, log.not_walking
+    st = log.stats
+    assert st.min_normal_force > 0.0 and st.max_friction_ratio < 0.7 and st.max_torque < 2.7
+    assert g.steps >= 6
+    pairs = [frozenset(p) for p in PAIRS]
+    landed = [next(p for p in pairs if set(feet) <= p) for _, feet in log.touchdowns]
+    firsts = [landed[k] for k in range(len(landed)) if k == 0 or landed[k] != landed[k - 1]]
+    assert len(firsts) >= 6 and all(a != b for a, b in zip(firsts, firsts[1:]))
+    heights = np.array([solo.foot_positions(x)[:, 2] for x in log.q])
+    assert (heights.max(0) > 0.02).all()
+    assert np.abs(log.roll).max() < 0.05 and np.abs(log.pitch).max() < 0.05
+    x_d = g.base_x(log.t[-1])[0]
+    assert log.q[-1, 0] - log.q[0, 0] == pytest.approx(x_d, abs=0.02)
