@@ -14,8 +14,8 @@ mean), the largest friction ratio and touchdown-impulse ratio (over 10 ms) and t
 lowest swing apex, the steps, and the wall time per simulated second.
 
 Usage: ``python benchmarks/legged_trot_mujoco.py [--duration 20] [--seeds 10] [--speed 0.3]
-[--push 3] [--payload 0.0]`` (payload: a fraction of the robot's mass on the base, in MuJoCo
-only: the unknown world)
+[--push 3] [--payload 0.0] [--substeps 2] [--impratio I] [--timeconst T]`` (payload: a
+fraction of the robot's mass on the base, in MuJoCo only: the unknown world)
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from feltool.walking.legged.trot import TrotController, TrotGait  # noqa: E402
 
 
 def run(solo, seed: int, duration: float, speed: float, push_n: float,
-        payload: float = 0.0) -> str:
+        payload: float = 0.0, **options) -> str:
     rng = np.random.default_rng(seed)
     v0 = np.zeros(solo.nv)
     v0[:3] = 0.05 * rng.standard_normal(3)
@@ -52,7 +52,7 @@ def run(solo, seed: int, duration: float, speed: float, push_n: float,
     load = Payload(payload * solo.mass) if payload > 0 else None
     t0 = time.perf_counter()
     log = stand_mujoco(solo, ctl, q0, v0=v0, duration=duration, schedule=gait.schedule,
-                       on_touchdown=gait.touchdown, push=push, payload=load)
+                       on_touchdown=gait.touchdown, push=push, payload=load, **options)
     wall = time.perf_counter() - t0
     st = log.stats
     result = "physical" if log.not_walking is None else f"{log.kind} at {log.t[-1]:.3f} s"
@@ -87,6 +87,11 @@ def main() -> None:
                     help="a 0.1 s horizontal push on the base [N], random direction and time")
     ap.add_argument("--payload", type=float, default=0.0,
                     help="a point mass on the base, a fraction of the robot's mass [-]")
+    ap.add_argument("--substeps", type=int, default=2, help="MuJoCo steps per control step")
+    ap.add_argument("--impratio", type=float, default=None,
+                    help="MuJoCo's friction-to-normal impedance ratio (default the plant's)")
+    ap.add_argument("--timeconst", type=float, default=None,
+                    help="the contacts' solref time constant [s] (default the plant's)")
     args = ap.parse_args()
     if args.duration <= 0 or args.seeds < 1 or args.speed < 0 or args.push < 0 or \
             args.payload < 0:
@@ -94,13 +99,18 @@ def main() -> None:
                 "--payload >= 0\n")
     solo = load_solo12(effort=2.7)
     print(f"Solo-12 trot in MuJoCo at {args.speed} m/s for {args.duration} s, 1 kHz control, "
-          f"2 kHz MuJoCo, checks on, a {args.push} N push for 0.1 s per seed, payload "
+          f"{args.substeps} MuJoCo steps each, checks on, a {args.push} N push for 0.1 s per seed, payload "
           f"{args.payload:g} of the mass")
     print(f"{'seed':>4s} {'push':>5s} {'deg':>4s} {'result':24s} {'t [s]':>6s} "
           f"{'v [m/s]':>6s} {'roll':>7s} {'pitch':>7s} {'min fn':>6s} {'fric':>5s} "
           f"{'imp':>5s} {'|u|':>5s} {'apex mm':>6s} {'steps':>5s} {'wall/s':>6s}")
+    options = {k: getattr(args, k) for k in ("impratio", "timeconst")
+               if getattr(args, k) is not None}
+    if options or args.substeps != 2:
+        print(f"MuJoCo: {args.substeps} steps per control step, {options}")
     for seed in range(args.first, args.first + args.seeds):
-        print(run(solo, seed, args.duration, args.speed, args.push, args.payload), flush=True)
+        print(run(solo, seed, args.duration, args.speed, args.push, args.payload,
+                  substeps=args.substeps, **options), flush=True)
 
 
 if __name__ == "__main__":
