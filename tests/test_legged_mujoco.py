@@ -157,3 +157,18 @@ def test_solo12_trots_in_mujoco(solo):
     assert np.abs(log.roll).max() < 0.05 and np.abs(log.pitch).max() < 0.05
     x_d = g.base_x(log.t[-1])[0]
     assert log.q[-1, 0] - log.q[0, 0] == pytest.approx(x_d, abs=0.02)
+
+
+def test_bad_plant_inputs_are_named(solo):
+    """A payload without a positive mass, an unknown integrator and a plant whose timestep is
+    not the loop's are configuration errors naming the field."""
+    from feltool.errors import ConfigError
+
+    for bad in (lambda: Payload(0.0), lambda: Payload(1.0, (0.0, np.nan, 0.0)),
+                lambda: LeggedMujoco(solo, integrator="implicit")):
+        with pytest.raises(ConfigError):
+            bad()
+    q0 = solo.standing()
+    with pytest.raises(ConfigError, match="timestep"):
+        stand_mujoco(solo, StandingController(solo, q0), q0, duration=0.01,
+                     plant=LeggedMujoco(solo, timestep=1e-3))

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from feltool.errors import RobotError
+from feltool.errors import ConfigError, RobotError
 from feltool.robot.mujoco import FOOT_RADIUS, MIN_INERTIA, import_mujoco
 from feltool.walking.legged.model import LeggedModel
 
@@ -63,6 +63,13 @@ class Payload:
     mass: float
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
+    def __post_init__(self):
+        offset = np.asarray(self.offset, float)
+        if not (np.isfinite(self.mass) and self.mass > 0) or offset.shape != (3,) or \
+                not np.all(np.isfinite(offset)):
+            raise ConfigError([("payload", f"a positive mass [kg] and a finite offset (x, y, z) "
+                                           f"[m], got {self.mass}, {self.offset}")])
+
     def inertia(self) -> pin.Inertia:
         """The payload as Pinocchio's spatial inertia in the base joint's frame."""
         return pin.Inertia(float(self.mass), np.asarray(self.offset, float),
@@ -74,9 +81,6 @@ def with_payload(legged: LeggedModel, payload: Payload | None) -> LeggedModel:
     model of the unknown world), or ``legged`` itself when ``payload`` is None."""
     if payload is None:
         return legged
-    if not payload.mass > 0 or not np.all(np.isfinite(payload.offset)):
-        raise RobotError(f"a payload needs a positive mass [kg] and a finite offset [m], got "
-                         f"{payload}")
     model = pin.Model(legged.model)
     model.inertias[1] = model.inertias[1] + payload.inertia()
     return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
@@ -136,7 +140,7 @@ class LeggedMujoco:
         self.legged = legged
         path = solo12_urdf() if urdf is None else Path(urdf)
         if integrator not in ("euler", "rk4"):
-            raise ValueError(f"integrator must be 'euler' or 'rk4', not {integrator!r}")
+            raise ConfigError([("integrator", f"'euler' or 'rk4', not {integrator!r}")])
         try:
             spec = mujoco.MjSpec.from_string(_urdf_without_geometry(path))
         except Exception as exc:

@@ -45,6 +45,7 @@ from collections.abc import Callable
 import numpy as np
 import pinocchio as pin
 
+from feltool.errors import ConfigError
 from feltool.walking.checks import ContactChecks, NotWalking
 from feltool.walking.legged.checks import LeggedStats, check_torques
 from feltool.walking.legged.contact import LeggedContact
@@ -121,8 +122,8 @@ def stand_mujoco(legged: LeggedModel, controller: StandingController, q0: np.nda
         plant = LeggedMujoco(legged, timestep=h, friction=chk.friction, payload=payload,
                              **mujoco_options)
     elif abs(plant.model.opt.timestep - h) > 1e-15:
-        raise ValueError(f"the plant's timestep {plant.model.opt.timestep} s is not "
-                         f"1 / (rate_hz * substeps) = {h} s")
+        raise ConfigError([("plant", f"its timestep {plant.model.opt.timestep} s is not "
+                                     f"1 / (rate_hz * substeps) = {h} s")])
     names = list(legged.feet)
     contact = LeggedContact(legged)
     stance = tuple(names)
