@@ -1,0 +1,315 @@
+r"""A legged robot on a free flyer compiled by MuJoCo: the plant of the legged loop in MuJoCo
+(:func:`~feltool.walking.legged.mujoco_stand.stand_mujoco`).
+
+The same URDF the known model (Pinocchio) reads is compiled by MuJoCo with the settings of
+:mod:`feltool.robot.mujoco`, so that without contacts MuJoCo's dynamics are the URDF's: its
+inertias exactly (``inertiafromgeom`` off, no ``balanceinertia``, no ``boundmass``,
+``boundinertia`` :data:`~feltool.robot.mujoco.MIN_INERTIA`), fixed links kept as bodies, joint
+limits, armature and the URDF's meshes off (its ``<visual>`` and ``<collision>`` elements are
+dropped before MuJoCo reads it: only the inertias and joints matter). What the URDF lacks is
+added programmatically:
+
+* a **free joint** on the root body (Pinocchio's ``JointModelFreeFlyer``);
+* the **floor**, a plane :data:`~feltool.robot.mujoco.FOOT_RADIUS` below z = 0, and one small
+  sphere of that radius per point foot centred on the foot point, so a foot point at z = 0
+  touches the floor; only feet and floor collide;
+* MuJoCo's soft contacts: an **elliptic** friction cone with ``friction`` (:math:`\mu`),
+  ``solref`` ``(timeconst, dampratio)`` (defaults :data:`TIMECONST`, :data:`DAMPRATIO`),
+  ``solimp`` :data:`SOLIMP`, the friction made stiffer than the normal direction
+  (``impratio`` :data:`IMPRATIO`: a standing robot's feet do not creep);
+* optionally a **payload**, a point mass at an offset in the base's frame
+  (:class:`Payload`; :func:`with_payload` puts the same one on a Pinocchio model).
+
+The 12 motor torques enter as ``qfrc_applied`` on the joints matched by name.
+
+**Coordinates.** Pinocchio's free flyer: ``q = (x, y, z, quaternion x, y, z, w, joints)``,
+``v = (base linear velocity in the base frame, angular velocity in the base frame, joint
+rates)``. MuJoCo's free joint: ``qpos = (x, y, z, quaternion w, x, y, z)``, ``qvel = (linear
+velocity of the body origin in the world frame, angular velocity in the body frame)``. So
+:math:`v^{mj}_{lin} = R\,v_{lin}`, :math:`\omega^{mj} = \omega`, and the accelerations
+:math:`a_{lin} = R^\top a^{mj}_{lin} - \omega \times v_{lin}` (the time derivative of the
+base-frame velocity :math:`R^\top \dot p`).
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from feltool.errors import ConfigError, RobotError
+from feltool.robot.mujoco import FOOT_RADIUS, MIN_INERTIA, import_mujoco
+from feltool.walking.legged.model import LeggedModel
+
+TIMECONST = 0.002   #: contact solref time constant [s] (raised to two timesteps)
+DAMPRATIO = 1.0     #: contact solref damping ratio [-] (critically damped)
+SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)  #: contact solimp (d0, dwidth, width [m], midpoint, power)
+#: friction-to-normal impedance ratio of the elliptic cone [-] (MuJoCo's ``impratio``). With
+#: MuJoCo's default 1 a soft friction constraint creeps: Solo-12 standing under the standing
+#: controller (friction ratio 0.39) slides a foot 2 mm in 0.72 s; with 10, 0.2 mm in 1 s; with
+#: 100, 0.02 mm in 1 s (``noslip_iterations`` 10 instead: 4e-5 mm)
+IMPRATIO = 100.0
+
+
+@dataclass(frozen=True)
+class Payload:
+    """A point mass fixed to the base: ``mass`` [kg] at ``offset`` [m] in the base's frame
+    (its rotational inertia about itself :data:`~feltool.robot.mujoco.MIN_INERTIA` on each
+    axis, which MuJoCo needs)."""
+
+    mass: float
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        offset = np.asarray(self.offset, float)
+        if not (np.isfinite(self.mass) and self.mass > 0) or offset.shape != (3,) or \
+                not np.all(np.isfinite(offset)):
+            raise ConfigError([("payload", f"a positive mass [kg] and a finite offset (x, y, z) "
+                                           f"[m], got {self.mass}, {self.offset}")])
+
+    def inertia(self) -> pin.Inertia:
+        """The payload as Pinocchio's spatial inertia in the base joint's frame."""
+        return pin.Inertia(float(self.mass), np.asarray(self.offset, float),
+                           MIN_INERTIA * np.eye(3))
+
+
+def with_payload(legged: LeggedModel, payload: Payload | None) -> LeggedModel:
+    """A copy of ``legged`` with ``payload`` added to its base joint's inertia (the plant's
+    model of the unknown world), or ``legged`` itself when ``payload`` is None."""
+    if payload is None:
+        return legged
+    model = pin.Model(legged.model)
+    model.inertias[1] = model.inertias[1] + payload.inertia()
+    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
+                       q0=legged.q0.copy(), name=f"{legged.name}+payload")
+
+
+def solo12_urdf() -> Path:
+    """The path of example-robot-data's ``solo12.urdf`` (what :func:`load_solo12` reads)."""
+    import example_robot_data as erd
+
+    return Path(erd.load("solo12").urdf)
+
+
+def _urdf_without_geometry(path: Path) -> str:
+    """The URDF's text without its ``<visual>`` and ``<collision>`` elements (MuJoCo would load
+    their meshes; the plant's only collision geometry is the feet's spheres)."""
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise RobotError(f"MuJoCo's plant cannot read the URDF '{path}': {exc}") from None
+    for link in root.iter("link"):
+        for tag in ("visual", "collision"):
+            for el in link.findall(tag):
+                link.remove(el)
+    return ET.tostring(root, encoding="unicode")
+
+
+class LeggedMujoco:
+    """A :class:`LeggedModel` compiled by MuJoCo (module doc).
+
+    Args:
+        legged: The robot (its joints and foot frames; the known model).
+        urdf: Its URDF file (default: Solo-12's, :func:`solo12_urdf`).
+        timestep: MuJoCo's step [s].
+        friction: The feet's friction coefficient :math:`\\mu` against the floor [-].
+        integrator: ``euler`` (semi-implicit, ``eulerdamp`` off) or ``rk4``.
+        timeconst: ``solref``'s time constant [s] (default :data:`TIMECONST`, at least two
+            timesteps); ``dampratio`` its damping ratio [-]; ``solimp`` MuJoCo's impedance.
+        impratio: MuJoCo's friction-to-normal impedance ratio [-] (:data:`IMPRATIO`);
+            ``noslip_iterations`` its no-slip post-solver's iterations (0: off).
+        payload: A point mass on the base (:class:`Payload`), or None.
+        floor: False: no floor (free flight).
+
+    Attributes:
+        model, data: MuJoCo's ``MjModel``, ``MjData``.
+        feet: foot name -> geom id of its sphere (the order of ``legged.feet``).
+        base: the base body's id.
+    """
+
+    def __init__(self, legged: LeggedModel, urdf: str | Path | None = None,
+                 timestep: float = 5e-4, friction: float = 0.7, integrator: str = "euler",
+                 timeconst: float | None = None, dampratio: float = DAMPRATIO,
+                 solimp: tuple = SOLIMP, impratio: float = IMPRATIO,
+                 noslip_iterations: int = 0, payload: Payload | None = None,
+                 floor: bool = True):
+        mujoco = self._mj = import_mujoco()
+        self.legged = legged
+        path = solo12_urdf() if urdf is None else Path(urdf)
+        if integrator not in ("euler", "rk4"):
+            raise ConfigError([("integrator", f"'euler' or 'rk4', not {integrator!r}")])
+        try:
+            spec = mujoco.MjSpec.from_string(_urdf_without_geometry(path))
+        except Exception as exc:
+            raise RobotError(f"MuJoCo cannot read '{path}': {exc}") from None
+        c = spec.compiler
+        c.fusestatic, c.discardvisual, c.balanceinertia = False, False, False
+        c.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+        c.boundmass, c.boundinertia = 0.0, MIN_INERTIA
+        o = spec.option
+        o.timestep = timestep
+        o.integrator = (mujoco.mjtIntegrator.mjINT_RK4 if integrator == "rk4"
+                        else mujoco.mjtIntegrator.mjINT_EULER)
+        o.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+        o.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+        o.impratio, o.noslip_iterations = impratio, noslip_iterations
+        o.gravity = np.array(legged.model.gravity.linear, float)
+        for j in spec.joints:
+            j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
+            j.armature, j.frictionloss, j.damping = 0.0, 0.0, np.zeros(3)
+        root = spec.worldbody.first_body()
+        root.add_freejoint(name="feltool_root")
+        if payload is not None:
+            root.add_body(name="feltool_payload", pos=np.asarray(payload.offset, float),
+                          ipos=[0.0, 0.0, 0.0], mass=float(payload.mass),
+                          inertia=[MIN_INERTIA] * 3,
+                          explicitinertial=True)
+        bodies = {j.name: j.parent for j in spec.joints}
+        self.timeconst = max(TIMECONST, 2.0 * timestep) if timeconst is None else timeconst
+        common = dict(friction=[friction, 0.005, 0.0001], solref=[self.timeconst, dampratio],
+                      solimp=list(solimp), condim=3)
+        if floor:
+            spec.worldbody.add_geom(name="feltool_floor", type=mujoco.mjtGeom.mjGEOM_PLANE,
+                                    size=[0, 0, 1], pos=[0, 0, -FOOT_RADIUS], contype=1,
+                                    conaffinity=0, **common)
+        pm = legged.model
+        for foot, fid in legged.feet.items():
+            frame = pm.frames[fid]
+            jname = pm.names[frame.parentJoint]
+            body = root if frame.parentJoint <= 1 else bodies[jname]
+            # the foot point in its joint's frame, which is its MuJoCo body's frame (fixed
+            # links are separate MuJoCo bodies, but a joint's body is the joint's child link)
+            body.add_geom(name=f"feltool_foot_{foot}", type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                          size=[FOOT_RADIUS, 0, 0], pos=np.array(frame.placement.translation),
+                          contype=0, conaffinity=1 if floor else 0, **common)
+        try:
+            self.model = spec.compile()
+        except Exception as exc:
+            raise RobotError(f"MuJoCo cannot compile '{path}': {exc}") from None
+        self.data = mujoco.MjData(self.model)
+        self._map(legged)
+        self.feet = {f: self.model.geom(f"feltool_foot_{f}").id for f in legged.feet}
+        self.floor = self.model.geom("feltool_floor").id if floor else -1
+        self.base = int(self.model.body(root.name).id)
+        self._f6 = np.zeros(6)
+
+    def _map(self, legged: LeggedModel) -> None:
+        """The joints matched by name: ``self.q_mj``/``self.v_mj``, MuJoCo's qpos/qvel address
+        of each motor joint, in Pinocchio's order."""
+        m, pm, mj = self.model, legged.model, self._mj
+        names = {m.joint(i).name: i for i in range(m.njnt)}
+        free = names.pop("feltool_root")
+        if m.jnt_qposadr[free] != 0 or m.jnt_dofadr[free] != 0:
+            raise RobotError(f"{legged.name}: MuJoCo's free joint is not its first joint")
+        q_mj, v_mj = [], []
+        for j in range(2, pm.njoints):
+            name = pm.names[j]
+            i = names.pop(name, None)
+            if i is None or pm.joints[j].nq != 1 or \
+                    int(m.jnt_type[i]) not in (int(mj.mjtJoint.mjJNT_HINGE),
+                                               int(mj.mjtJoint.mjJNT_SLIDE)):
+                raise RobotError(f"{legged.name}: MuJoCo's model of the URDF has no "
+                                 f"one-degree-of-freedom joint '{name}'")
+            q_mj.append(int(m.jnt_qposadr[i]))
+            v_mj.append(int(m.jnt_dofadr[i]))
+        if names:
+            raise RobotError(f"{legged.name}: the URDF's joints {sorted(names)} are not in the "
+                             "legged model (locked joints are not supported)")
+        self.q_mj, self.v_mj = np.array(q_mj, int), np.array(v_mj, int)
+
+    # -- coordinates --------------------------------------------------------------------------
+    def to_mujoco(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """MuJoCo's ``(qpos, qvel)`` of Pinocchio's ``(q, v)`` (module doc)."""
+        qpos, qvel = np.zeros(self.model.nq), np.zeros(self.model.nv)
+        quat = np.asarray(q[3:7], float) / np.linalg.norm(q[3:7])
+        qpos[:3], qpos[3], qpos[4:7] = q[:3], quat[3], quat[:3]
+        qpos[self.q_mj] = q[7:]
+        R = pin.Quaternion(quat[3], *quat[:3]).toRotationMatrix()
+        qvel[:3], qvel[3:6] = R @ v[:3], v[3:6]
+        qvel[self.v_mj] = v[6:]
+        return qpos, qvel
+
+    def to_pinocchio(self, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pinocchio's ``(q, v)`` of MuJoCo's ``(qpos, qvel)`` (module doc)."""
+        q, v = np.empty(self.legged.nq), np.empty(self.legged.nv)
+        quat = np.asarray(qpos[3:7], float) / np.linalg.norm(qpos[3:7])
+        q[:3], q[3:6], q[6] = qpos[:3], quat[1:], quat[0]
+        q[7:] = qpos[self.q_mj]
+        R = pin.Quaternion(*quat).toRotationMatrix()
+        v[:3], v[3:6] = R.T @ qvel[:3], qvel[3:6]
+        v[6:] = qvel[self.v_mj]
+        return q, v
+
+    def set_state(self, q: np.ndarray, v: np.ndarray) -> None:
+        """Put MuJoCo's robot at Pinocchio's ``(q, v)`` (``mj_forward``: positions, contacts and
+        accelerations at it, no torque)."""
+        d = self.data
+        d.qpos[:], d.qvel[:] = self.to_mujoco(q, v)
+        d.qfrc_applied[:] = 0.0
+        d.xfrc_applied[:] = 0.0
+        self._mj.mj_forward(self.model, d)
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Pinocchio's ``(q, v)`` of MuJoCo's current state."""
+        return self.to_pinocchio(self.data.qpos, self.data.qvel)
+
+    def acceleration(self) -> np.ndarray:
+        """Pinocchio's generalized acceleration ``(nv,)`` of MuJoCo's ``qacc`` (the last
+        ``mj_forward``'s or step's) [m/s^2, rad/s^2]."""
+        q, v = self.state()
+        qa = self.data.qacc
+        R = pin.XYZQUATToSE3(q[:7]).rotation
+        a = np.empty(self.legged.nv)
+        a[:3] = R.T @ qa[:3] - np.cross(v[3:6], v[:3])
+        a[3:6] = qa[3:6]
+        a[6:] = qa[self.v_mj]
+        return a
+
+    # -- stepping ------------------------------------------------------------------------------
+    def generalized(self, u: np.ndarray, force=None, torque=None) -> np.ndarray:
+        """MuJoCo's ``qfrc`` ``(nv,)`` of motor torques ``u`` ``(k,)`` [N m] and a push on the
+        base: ``force`` [N] at the base's origin and ``torque`` [N m], world axes."""
+        out = np.zeros(self.model.nv)
+        out[self.v_mj] = u
+        if force is not None or torque is not None:
+            f = np.zeros(3) if force is None else np.asarray(force, float)
+            tq = np.zeros(3) if torque is None else np.asarray(torque, float)
+            self._mj.mj_applyFT(self.model, self.data, f, tq, self.data.xpos[self.base].copy(),
+                                self.base, out)
+        return out
+
+    def step(self, qfrc: np.ndarray) -> None:
+        """One MuJoCo step under the generalized force ``qfrc`` (MuJoCo's order, e.g.
+        :meth:`generalized`). Afterwards the kinematics (:meth:`foot_points`) are the new
+        state's; the contacts (:meth:`foot_contacts`) are the ones that acted over the step, at
+        the state it started from."""
+        d = self.data
+        d.qfrc_applied[:] = qfrc
+        self._mj.mj_step(self.model, d)
+        self._mj.mj_kinematics(self.model, d)
+
+    def foot_points(self) -> np.ndarray:
+        """``(n_feet, 3)`` the foot points in the world [m] (the spheres' centres)."""
+        return self.data.geom_xpos[list(self.feet.values())].copy()
+
+    def foot_contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(forces (n_feet, 3) [N], depths (n_feet,) [m])``: the floor's force on each foot
+        in the world's axes (``mj_contactForce``, summed over its contacts) and its
+        penetration (0 in the air), over the last step."""
+        m, d, f6 = self.model, self.data, self._f6
+        ids = list(self.feet.values())
+        forces, depths = np.zeros((len(ids), 3)), np.zeros(len(ids))
+        for i in range(d.ncon):
+            c = d.contact[i]
+            k = ids.index(c.geom2) if c.geom2 in ids else ids.index(c.geom1) \
+                if c.geom1 in ids else -1
+            if k < 0:
+                continue
+            self._mj.mj_contactForce(m, d, i, f6)
+            world = c.frame.reshape(3, 3).T @ f6[:3]  # geom1's force on geom2, world axes
+            forces[k] += world if c.geom2 == ids[k] else -world
+            depths[k] = max(depths[k], -float(c.dist))
+        return forces, depths
