@@ -29,8 +29,10 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from feltool.walking.legged.model import load_solo12  # noqa: E402
-from feltool.walking.legged.mujoco_plant import Payload  # noqa: E402
+from feltool.walking.legged.model import (
+    Payload,  # noqa: E402
+    load_solo12,  # noqa: E402
+)
 from feltool.walking.legged.mujoco_stand import stand_mujoco  # noqa: E402
 from feltool.walking.legged.stand import Push  # noqa: E402
 from feltool.walking.legged.trot import TrotController, TrotGait  # noqa: E402

@@ -12,8 +12,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from feltool.walking.legged.control import StandingController
-from feltool.walking.legged.model import load_solo12
-from feltool.walking.legged.mujoco_plant import LeggedMujoco, Payload, with_payload
+from feltool.walking.legged.model import Payload, load_solo12, with_payload
+from feltool.walking.legged.mujoco_plant import LeggedMujoco
 from feltool.walking.legged.mujoco_stand import stand_mujoco
 from feltool.walking.legged.trot import PAIRS, TrotController, TrotGait
 

@@ -56,7 +56,8 @@ import numpy as np
 
 from feltool.errors import InputError
 from feltool.motion import spectral
-from feltool.walking.legged.model import LeggedModel, with_payload
+from feltool.walking.legged.model import LeggedModel, Payload, with_payload
+from feltool.walking.legged.mujoco_stand import stand_mujoco
 from feltool.walking.legged.stand import StandLog, stand
 from feltool.walking.legged.trot import TrotController, TrotGait
 
@@ -221,7 +222,8 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                gait: TrotGait | None = None, rate_hz: float = 1000.0,
                impact_window: float = 1e-4, start_speed: float = 1.0) -> TrotLearning:
     """Trot ``cycles`` cycles learning the feedforward, the robot carrying a payload of
-    ``payload`` times its mass on its base (a box, :func:`with_payload`) from the start of cycle
+    ``payload`` times its mass on its base (a point mass at its origin,
+    :class:`~feltool.walking.legged.model.Payload`) from the start of cycle
     ``change`` on, which the controller's model does not know.
 
     Args:
@@ -229,27 +231,33 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
         seed: Seeds the start velocity: the base's linear velocity ``0.05``, angular ``0.2``,
             joints ``0.2`` times ``start_speed`` times standard normal draws [m/s, rad/s].
         learn: False: the same rollout without learning (the feedback it needs).
-        plant: ``"pinocchio"`` (the rigid contact loop of :func:`stand`).
+        plant: ``"pinocchio"`` (the rigid contact loop of :func:`stand`) or ``"mujoco"``
+            (:func:`~feltool.walking.legged.mujoco_stand.stand_mujoco`, soft contacts; the
+            impact window does not apply).
         gait: The trot (default :class:`TrotGait` ``()``).
     """
-    if plant != "pinocchio":
-        raise InputError(f"plant {plant!r}: the legged loop runs on 'pinocchio'")
+    if plant not in ("pinocchio", "mujoco"):
+        raise InputError(f"plant {plant!r}: 'pinocchio' or 'mujoco'")
     gait = TrotGait() if gait is None else gait
     q0 = legged.standing()
     ctl = LearningTrotController(legged, q0, gait=gait,
                                  learn_from=0 if learn else np.iinfo(np.int64).max)
-    heavy = with_payload(legged, payload * legged.mass)
+    load = Payload(payload * legged.mass)
     rng = np.random.default_rng(seed)
     v0 = np.zeros(legged.nv)
     v0[:3] = 0.05 * start_speed * rng.standard_normal(3)
     v0[3:6] = 0.2 * start_speed * rng.standard_normal(3)
     v0[6:] = 0.2 * start_speed * rng.standard_normal(legged.nv - 6)
     duration = gait.start + gait.ramp + 2.0 * (cycles + 2) * gait.period
-    log = stand(legged, ctl, q0, v0=v0, duration=duration, rate_hz=rate_hz,
-                schedule=gait.schedule, on_touchdown=gait.touchdown,
-                impact_window=impact_window,
-                plant=lambda t: heavy if ctl.cycle >= change else None,
-                until=lambda t: ctl.cycle >= cycles)
+    common = dict(v0=v0, duration=duration, rate_hz=rate_hz, schedule=gait.schedule,
+                  on_touchdown=gait.touchdown, until=lambda t: ctl.cycle >= cycles)
+    if plant == "pinocchio":
+        heavy = with_payload(legged, load).model
+        log = stand(legged, ctl, q0, impact_window=impact_window,
+                    plant=lambda t: heavy if ctl.cycle >= change else None, **common)
+    else:
+        log = stand_mujoco(legged, ctl, q0, payload=load,
+                           payload_from=lambda t: ctl.cycle >= change, **common)
     fb = np.sqrt((np.array(ctl.share_rms).reshape(-1, legged.nv - 6) ** 2).sum(axis=1))
     half = len(log.t) // 2
     speed = float((log.q[-1, 0] - log.q[half, 0]) / max(log.t[-1] - log.t[half], 1e-300))

@@ -21,6 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.errors import ConfigError, RobotError
+from feltool.robot.mujoco import MIN_INERTIA
 from feltool.robot.robot import check_model_dynamics
 
 #: The feet of Solo-12 in example-robot-data, by their frames
@@ -217,15 +218,36 @@ def load_solo12(effort: float | None = None) -> LeggedModel:
                         name="solo12")
 
 
-def with_payload(legged: LeggedModel, mass: float, offset=(0.0, 0.0, 0.0),
-                 size=(0.1, 0.1, 0.02)) -> pin.Model:
-    """A copy of the robot's model carrying a payload on its base: a solid box of ``mass``
-    [kg] and ``size`` [m] (x, y, z), its centre at ``offset`` [m] in the base's frame (an
-    unknown world for feedback error learning; the known model stays ``legged.model``)."""
-    if not mass >= 0.0:
-        raise RobotError(f"a payload of {mass} kg")
+
+@dataclass(frozen=True)
+class Payload:
+    """A point mass fixed to the base: ``mass`` [kg] at ``offset`` [m] in the base's frame
+    (an unknown world for feedback error learning: the controller's model stays without it).
+    Its rotational inertia about itself is :data:`~feltool.robot.mujoco.MIN_INERTIA` on each
+    axis, which MuJoCo needs."""
+
+    mass: float
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        offset = np.asarray(self.offset, float)
+        if not (np.isfinite(self.mass) and self.mass > 0) or offset.shape != (3,) or \
+                not np.all(np.isfinite(offset)):
+            raise ConfigError([("payload", f"a positive mass [kg] and a finite offset (x, y, z) "
+                                           f"[m], got {self.mass}, {self.offset}")])
+
+    def inertia(self) -> pin.Inertia:
+        """The payload as Pinocchio's spatial inertia in the base joint's frame."""
+        return pin.Inertia(float(self.mass), np.asarray(self.offset, float),
+                           MIN_INERTIA * np.eye(3))
+
+
+def with_payload(legged: LeggedModel, payload: Payload | None) -> LeggedModel:
+    """A copy of ``legged`` with ``payload`` added to its base joint's inertia (the plant's
+    model of the unknown world), or ``legged`` itself when ``payload`` is None."""
+    if payload is None:
+        return legged
     model = pin.Model(legged.model)
-    box = pin.Inertia.FromBox(float(mass), *map(float, size))
-    placed = pin.SE3(np.eye(3), np.asarray(offset, float)).act(box)
-    model.inertias[1] = model.inertias[1] + placed
-    return model
+    model.inertias[1] = model.inertias[1] + payload.inertia()
+    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
+                       q0=legged.q0.copy(), name=f"{legged.name}+payload")

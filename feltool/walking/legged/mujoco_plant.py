@@ -18,7 +18,8 @@ added programmatically:
   ``solimp`` :data:`SOLIMP`, the friction made stiffer than the normal direction
   (``impratio`` :data:`IMPRATIO`: a standing robot's feet do not creep);
 * optionally a **payload**, a point mass at an offset in the base's frame
-  (:class:`Payload`; :func:`with_payload` puts the same one on a Pinocchio model).
+  (:class:`~feltool.walking.legged.model.Payload`; :func:`~feltool.walking.legged.model.with_payload`
+  puts the same one on a Pinocchio model).
 
 The 12 motor torques enter as ``qfrc_applied`` on the joints matched by name.
 
@@ -34,7 +35,6 @@ base-frame velocity :math:`R^\top \dot p`).
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +42,7 @@ import pinocchio as pin
 
 from feltool.errors import ConfigError, RobotError
 from feltool.robot.mujoco import FOOT_RADIUS, MIN_INERTIA, import_mujoco
-from feltool.walking.legged.model import LeggedModel
+from feltool.walking.legged.model import LeggedModel, Payload
 
 TIMECONST = 0.002   #: contact solref time constant [s] (raised to two timesteps)
 DAMPRATIO = 1.0     #: contact solref damping ratio [-] (critically damped)
@@ -52,39 +52,6 @@ SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)  #: contact solimp (d0, dwidth, width [m],
 #: controller (friction ratio 0.39) slides a foot 2 mm in 0.72 s; with 10, 0.2 mm in 1 s; with
 #: 100, 0.02 mm in 1 s (``noslip_iterations`` 10 instead: 4e-5 mm)
 IMPRATIO = 100.0
-
-
-@dataclass(frozen=True)
-class Payload:
-    """A point mass fixed to the base: ``mass`` [kg] at ``offset`` [m] in the base's frame
-    (its rotational inertia about itself :data:`~feltool.robot.mujoco.MIN_INERTIA` on each
-    axis, which MuJoCo needs)."""
-
-    mass: float
-    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self):
-        offset = np.asarray(self.offset, float)
-        if not (np.isfinite(self.mass) and self.mass > 0) or offset.shape != (3,) or \
-                not np.all(np.isfinite(offset)):
-            raise ConfigError([("payload", f"a positive mass [kg] and a finite offset (x, y, z) "
-                                           f"[m], got {self.mass}, {self.offset}")])
-
-    def inertia(self) -> pin.Inertia:
-        """The payload as Pinocchio's spatial inertia in the base joint's frame."""
-        return pin.Inertia(float(self.mass), np.asarray(self.offset, float),
-                           MIN_INERTIA * np.eye(3))
-
-
-def with_payload(legged: LeggedModel, payload: Payload | None) -> LeggedModel:
-    """A copy of ``legged`` with ``payload`` added to its base joint's inertia (the plant's
-    model of the unknown world), or ``legged`` itself when ``payload`` is None."""
-    if payload is None:
-        return legged
-    model = pin.Model(legged.model)
-    model.inertias[1] = model.inertias[1] + payload.inertia()
-    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
-                       q0=legged.q0.copy(), name=f"{legged.name}+payload")
 
 
 def solo12_urdf() -> Path:
@@ -194,7 +161,23 @@ class LeggedMujoco:
         self.feet = {f: self.model.geom(f"feltool_foot_{f}").id for f in legged.feet}
         self.floor = self.model.geom("feltool_floor").id if floor else -1
         self.base = int(self.model.body(root.name).id)
+        self.payload = payload
         self._f6 = np.zeros(6)
+
+    def carry(self, on: bool) -> None:
+        """Put the payload this plant was compiled with on the base (``on``) or take it off
+        (its mass 0): a world that changes during a rollout."""
+        if self.payload is None:
+            raise ConfigError([("payload", "the plant was compiled without one")])
+        body = self.model.body("feltool_payload").id
+        self.model.body_mass[body] = float(self.payload.mass) if on else 0.0
+        mj, d = self._mj, self.data
+        spec = mj.mjtState.mjSTATE_INTEGRATION
+        state = np.empty(mj.mj_stateSize(self.model, spec))
+        mj.mj_getState(self.model, d, state, spec)
+        mj.mj_setConst(self.model, d)  # the masses' derived constants (it uses d as scratch)
+        mj.mj_setState(self.model, d, state, spec)
+        mj.mj_forward(self.model, d)
 
     def _map(self, legged: LeggedModel) -> None:
         """The joints matched by name: ``self.q_mj``/``self.v_mj``, MuJoCo's qpos/qvel address

@@ -50,8 +50,8 @@ from feltool.walking.checks import ContactChecks, NotWalking
 from feltool.walking.legged.checks import LeggedStats, check_torques
 from feltool.walking.legged.contact import LeggedContact
 from feltool.walking.legged.control import StandingController
-from feltool.walking.legged.model import LeggedModel
-from feltool.walking.legged.mujoco_plant import LeggedMujoco, Payload
+from feltool.walking.legged.model import LeggedModel, Payload
+from feltool.walking.legged.mujoco_plant import LeggedMujoco
 from feltool.walking.legged.stand import Push, StandLog
 
 LIFT_OFF_HYSTERESIS = 0.0002  #: a foot point this high [m] has left the floor
@@ -93,7 +93,9 @@ def stand_mujoco(legged: LeggedModel, controller: StandingController, q0: np.nda
                  schedule: Callable[[float], tuple[str, ...]] | None = None,
                  on_touchdown: Callable[[float, tuple[str, ...]], None] | None = None,
                  payload: Payload | None = None, plant: LeggedMujoco | None = None,
-                 max_tilt: float = 0.5, **mujoco_options) -> StandLog:
+                 max_tilt: float = 0.5, payload_from: Callable[[float], bool] | None = None,
+                 until: Callable[[float], bool] | None = None,
+                 **mujoco_options) -> StandLog:
     """Roll the robot out for ``duration`` [s] with MuJoCo as the plant; the contract and the
     log of :func:`~feltool.walking.legged.stand.stand` (module doc for the checks).
 
@@ -114,6 +116,10 @@ def stand_mujoco(legged: LeggedModel, controller: StandingController, q0: np.nda
         plant: A compiled plant to use (else one is compiled with ``payload`` and
             ``mujoco_options``, e.g. ``timeconst``, ``dampratio``, ``integrator``).
         max_tilt: Largest |roll| and |pitch| of the base [rad] (kind ``tilt``).
+        payload_from: ``t [s] -> bool``: the ``payload`` is on the base only from the first
+            control step at which it is True (a world that changes; default: from the start).
+        until: ``t [s] -> bool``, asked after every control step: True ends the rollout
+            (as :func:`~feltool.walking.legged.stand.stand`'s).
     """
     chk = ContactChecks(effort=legged.effort) if checks is None else checks
     dt = 1.0 / rate_hz
@@ -124,6 +130,9 @@ def stand_mujoco(legged: LeggedModel, controller: StandingController, q0: np.nda
     elif abs(plant.model.opt.timestep - h) > 1e-15:
         raise ConfigError([("plant", f"its timestep {plant.model.opt.timestep} s is not "
                                      f"1 / (rate_hz * substeps) = {h} s")])
+    carrying = payload_from is None
+    if not carrying:
+        plant.carry(False)
     names = list(legged.feet)
     contact = LeggedContact(legged)
     stance = tuple(names)
@@ -145,6 +154,8 @@ def stand_mujoco(legged: LeggedModel, controller: StandingController, q0: np.nda
     try:
         for i in range(n):
             t = i * dt
+            if not carrying and payload_from(t):
+                plant.carry(carrying := True)
             q, v = plant.state()
             _tilt(q, max_tilt)
             wanted = tuple(names) if schedule is None else \
@@ -182,6 +193,8 @@ def stand_mujoco(legged: LeggedModel, controller: StandingController, q0: np.nda
             if not np.all(np.isfinite(plant.data.qpos)) or \
                     not np.all(np.isfinite(plant.data.qvel)):
                 raise NotWalking(f"the state is not finite at t = {t:.4g} s", "diverged")
+            if until is not None and until(t + dt):
+                break
     except NotWalking as exc:
         reason, kind = str(exc), exc.kind
     Q = np.array(rec["q"]).reshape(-1, legged.nq)
