@@ -32,6 +32,7 @@ lands a little early still lands along it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,6 +93,7 @@ class TrotGait:
         self.swing = 1
         self.t_switch = self.start
         self.steps = 0
+        self.t_cycle: float | None = None  # when the current cycle began (after the ramp)
         self.down: set[str] = set()
 
     def swinging(self, t: float) -> int | None:
@@ -118,6 +120,13 @@ class TrotGait:
             self.t_switch = t
             self.steps += 1
             self.down = set()
+            if self.steps % 2 == 0 and t >= self.start + self.ramp:
+                self.t_cycle = t  # (FL, HR) down: a cycle begins
+
+    def cycle_time(self, t: float) -> float | None:
+        """Time [s] since the current cycle began (the pair ``(FL, HR)``'s touchdown after the
+        speed ramp), None before the first one."""
+        return None if self.t_cycle is None else t - self.t_cycle
 
 
 def _quintic(s: float) -> float:
@@ -155,6 +164,10 @@ class TrotController(StandingController):
     normal_force_min: float = 2.0
     horizontal: tuple[float, float] = (100.0, 10.0)
     swing_gains: tuple[float, float] = (600.0, 20.0)
+    #: the reference's correction by the time in the cycle (:mod:`.orbit`), or None
+    correction: Callable | None = None
+    #: called at the end of every control update with ``(t, q, v, feet, allocation)``
+    observer: Callable | None = None
 
     def __post_init__(self):
         super().__post_init__()
@@ -172,6 +185,8 @@ class TrotController(StandingController):
         self._stance = tuple(self.names)
         self._q_ik = self.q_ref.copy()
         self._t = 0.0
+        P0 = np.array([self.anchor[f] for f in self.names])
+        self.feet_d = (P0, np.zeros_like(P0))
 
     def _base(self, t: float) -> np.ndarray:
         x = self.gait.base_x(t)[0]
@@ -283,9 +298,7 @@ class TrotController(StandingController):
         if air:  # the feet in the air follow their targets in the world, not from the base
             kp, kd = self.swing_gains
             P, V = self.contact.foot_states(q, v)
-            e = 1e-4
-            Pd, Pm, Pp = self._feet(self._t), self._feet(self._t - e), self._feet(self._t + e)
-            Vd = (Pp - Pm) / (2 * e)
+            Pd, Vd = self.feet_d
             J = self.contact.jacobian(q, tuple(air))
             for k, foot in enumerate(air):
                 i = self.names.index(foot)
@@ -293,15 +306,31 @@ class TrotController(StandingController):
                 out[6:] += (J[3 * k:3 * k + 3].T @ F)[6:]
         return out
 
-    def __call__(self, q: np.ndarray, v: np.ndarray, feet: tuple[str, ...], t: float = 0.0):
-        self._update(q, v, tuple(feet), t)
-        self._t = t
+    def plan(self, t: float) -> tuple[np.ndarray, ...]:
+        """The planned motion at ``t`` [s]: ``(q_d, v_d, a_d)`` of the joints by inverse
+        kinematics of the desired base and feet (central differences of 0.1 ms) and the feet's
+        targets ``(P_d, V_d)`` ``(4, 3)`` [m, m/s]."""
         e = 1e-4
         qm, qc, qp = self.pose(t - e), self.pose(t), self.pose(t + e)
         self._q_ik = qc
         m = self.model
-        self.q_d = qc
-        self.v_d = np.array(pin.difference(m, qm, qp)) / (2 * e)
-        self.a_d = (np.array(pin.difference(m, qc, qp)) - np.array(pin.difference(m, qm, qc))) \
-            / e ** 2
-        return self.allocate(q, v, self.wanted(q, v), feet)
+        v_d = np.array(pin.difference(m, qm, qp)) / (2 * e)
+        a_d = (np.array(pin.difference(m, qc, qp)) - np.array(pin.difference(m, qm, qc))) / e ** 2
+        Pm, Pc, Pp = self._feet(t - e), self._feet(t), self._feet(t + e)
+        return qc, v_d, a_d, Pc, (Pp - Pm) / (2 * e)
+
+    def __call__(self, q: np.ndarray, v: np.ndarray, feet: tuple[str, ...], t: float = 0.0):
+        self._update(q, v, tuple(feet), t)
+        self._t = t
+        self.planned = self.plan(t)
+        q_d, v_d, a_d, P_d, V_d = self.planned
+        tau = self.gait.cycle_time(t)
+        if self.correction is not None and tau is not None:  # the acquired orbit (.orbit)
+            dq, dv, da, dP, dV = self.correction(tau)
+            q_d, v_d, a_d = pin.integrate(self.model, q_d, dq), v_d + dv, a_d + da
+            P_d, V_d = P_d + dP, V_d + dV
+        self.q_d, self.v_d, self.a_d, self.feet_d = q_d, v_d, a_d, (P_d, V_d)
+        alloc = self.allocate(q, v, self.wanted(q, v), feet)
+        if self.observer is not None:
+            self.observer(t, q, v, tuple(feet), alloc)
+        return alloc
