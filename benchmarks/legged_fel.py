@@ -1,6 +1,7 @@
 """Feedback error learning on the Solo-12 trot in an unknown world (docs/legged.md, issue 32):
-the trot of feltool.walking.legged.trot with the learned feedforward of
-feltool.walking.legged.learn, a payload of ``--payload`` of the robot's mass put on its base at
+the trot of feltool.walking.legged.trot, its reference acquired on the known model
+(feltool.walking.legged.orbit, ``--acquire`` rounds, once for every seed), with the learned
+feedforward of feltool.walking.legged.learn, a payload of ``--payload`` of the robot's mass put on its base at
 the start of cycle ``--change`` (the controller's model does not know it), every contact check
 on (normal force > 0, circular friction cone mu = 0.7, impulses pushing and in the cone, no foot
 below the ground, released feet accelerating up, 2.7 N m motors).
@@ -14,7 +15,7 @@ pitch, least normal force, largest friction ratio and torque, the forward speed 
 half, and the wall time.
 
 Usage: ``python benchmarks/legged_fel.py [--cycles 150] [--seeds 0-9] [--payload 0.2]
-[--change 3] [--no-learning]``
+[--change 3] [--no-learning] [--acquire 4] [--plant pinocchio|mujoco]``
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np  # noqa: E402
 
 from feltool.walking.legged.learn import learn_trot  # noqa: E402
 from feltool.walking.legged.model import load_solo12  # noqa: E402
+from feltool.walking.legged.orbit import acquire_orbit  # noqa: E402
 
 
 def seeds(text: str) -> list[int]:
@@ -45,8 +47,18 @@ def main() -> None:
     ap.add_argument("--change", type=int, default=3, help="the cycle the payload is put on")
     ap.add_argument("--no-learning", action="store_true")
     ap.add_argument("--plant", choices=("pinocchio", "mujoco"), default="pinocchio")
+    ap.add_argument("--acquire", type=int, default=4,
+                    help="rounds of the reference's acquisition on the known model (0: none)")
     args = ap.parse_args()
     solo = load_solo12(effort=2.7)
+    correction = None
+    if args.acquire:
+        t0 = time.perf_counter()
+        acq = acquire_orbit(solo, rounds=args.acquire)
+        correction = acq.correction
+        print(f"reference acquired on the known model in {args.acquire} rounds "
+              f"({time.perf_counter() - t0:.0f} s): summed feedback per round "
+              + ", ".join(f"{f:.4f}" for f in acq.feedback) + " N m")
     print(f"Solo-12 ({solo.mass:.3f} kg), payload {args.payload:.0%} from cycle {args.change}, "
           f"{args.cycles} cycles, learning {'off' if args.no_learning else 'on'}, "
           f"plant {args.plant}")
@@ -57,7 +69,8 @@ def main() -> None:
     for seed in args.seeds:
         t0 = time.perf_counter()
         run = learn_trot(solo, cycles=args.cycles, payload=args.payload, change=args.change,
-                         seed=seed, learn=not args.no_learning, plant=args.plant)
+                         seed=seed, learn=not args.no_learning, plant=args.plant,
+                         correction=correction, acquire=0)
         wall = time.perf_counter() - t0
         k = args.change
         fb = np.r_[run.feedback, np.full(max(0, k + 1 - len(run.feedback)), np.nan)]

@@ -1,8 +1,9 @@
 """Feedback error learning on the legged trot, the resumable legged loop and the trot's Poincaré
 map (issue 32): the learned series against closed forms, the feedback's effective part and
-motor share against Pinocchio's constraint dynamics, Newton's law for a payload put on during
-a rollout, FEL removing a 20 % payload's feedback on seeds 0-2 (fixed before looking) on both
-plants, and the Poincaré map's fixed point stable (rho < 0.9)."""
+motor share against the KKT accelerations, Newton's law for a payload put on during a rollout,
+the reference acquired on the known model, FEL bringing a 20 % payload's feedback to 0.15 of
+the change's cycle on seeds 0-2 (fixed before looking) and on MuJoCo, and the Poincaré map's
+fixed point stable (rho < 0.9)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from feltool.errors import FeltoolError
 from feltool.walking.legged.control import StandingController
 from feltool.walking.legged.learn import PhaseFeedforward, learn_trot
 from feltool.walking.legged.model import Payload, load_solo12, with_payload
+from feltool.walking.legged.orbit import acquire_orbit
 from feltool.walking.legged.poincare import (
     _coordinates,
     _run,
@@ -193,29 +195,42 @@ def test_a_payload_adds_its_mass_and_moves_the_com(solo):
     assert np.allclose(pin.centerOfMass(heavy.model, heavy.data, q), want, atol=1e-12)
 
 
-# -- FEL with an unknown payload, seeds 0-2 ----------------------------------------------------
+# -- the reference acquired on the known model, FEL with an unknown payload, seeds 0-2 ---------
+
+@pytest.fixture(scope="module")
+def acquired(solo):
+    return acquire_orbit(solo, rounds=4)
+
+
+def test_the_acquired_reference_leaves_a_third_of_the_plans_feedback(acquired):
+    fb = acquired.feedback
+    assert len(fb) == 5 and acquired.correction is not None
+    assert np.all(np.diff(fb) < 0)          # every round lowers it
+    assert fb[-1] < 0.35 * fb[0]            # 0.130 -> 0.032 N m measured
+
 
 @pytest.mark.parametrize("seed", range(3))
-def test_fel_takes_a_payloads_feedback_away(solo, seed):
-    """20 % of the mass from cycle 3: without learning the feedback stays about 3.3 times the
-    cycle before the change; FEL brings it back to that cycle's within 10 % by cycle 8."""
-    on = learn_trot(solo, cycles=9, seed=seed)
-    off = learn_trot(solo, cycles=9, seed=seed, learn=False)
-    for r in (on, off):
-        assert r.kind is None and len(r.feedback) == 9
-        assert r.speed == pytest.approx(0.3, abs=0.01)
-    before = on.feedback[2]
-    assert on.feedback[3] > 3.0 * before          # the payload's cycle
-    assert off.feedback[-1] > 3.0 * before         # not learned: it stays
-    assert on.feedback[-1] < 1.1 * before          # learned: gone
-    assert np.all(np.diff(on.feedback[3:]) < 0.01)  # and falling
+def test_fel_takes_a_payloads_feedback_away(solo, acquired, seed):
+    """20 % of the mass from cycle 3: FEL brings the last of 12 cycles to at most 0.15 of the
+    payload's cycle (the issue's bound, with 150 cycles), and it falls every cycle to cycle 8;
+    without learning (seed 0) the feedback stays above 3 times the cycle before the change."""
+    on = learn_trot(solo, cycles=12, seed=seed, correction=acquired.correction)
+    assert on.kind is None and len(on.feedback) == 12
+    assert on.speed == pytest.approx(0.3, abs=0.01)
+    assert on.feedback[3] > 3.0 * on.feedback[2]       # the payload's cycle
+    assert on.feedback[-1] < 0.15 * on.feedback[3]     # 0.083 measured on seed 0
+    assert np.all(np.diff(on.feedback[3:9]) < 0)
+    if seed == 0:
+        off = learn_trot(solo, cycles=12, seed=seed, learn=False, correction=acquired.correction)
+        assert off.kind is None and off.feedback[-1] > 3.0 * off.feedback[2]
 
 
-def test_fel_takes_a_payloads_feedback_away_on_mujoco(solo):
-    on = learn_trot(solo, cycles=9, seed=0, plant="mujoco")
-    assert on.kind is None and len(on.feedback) == 9
+def test_fel_takes_a_payloads_feedback_away_on_mujoco(solo, acquired):
+    """The reference acquired on the rigid known model, MuJoCo's soft contacts as the plant."""
+    on = learn_trot(solo, cycles=12, seed=0, plant="mujoco", correction=acquired.correction)
+    assert on.kind is None and len(on.feedback) == 12
     assert on.feedback[3] > 3.0 * on.feedback[2]
-    assert on.feedback[-1] < 1.1 * on.feedback[2]
+    assert on.feedback[-1] < 0.15 * on.feedback[3]
 
 
 def test_an_unknown_plant_is_refused(solo):
@@ -239,13 +254,16 @@ def test_perturbed_section_states_keep_every_foot_down_and_stopped(solo):
     assert np.abs(P[:, :2] - P0[:, :2]).max() > 1e-4  # and the feet did move
 
 
-def test_the_trots_fixed_point_is_stable_and_the_jacobian_predicts_a_perturbation(solo):
+def test_the_trots_fixed_point_is_stable_and_the_jacobian_predicts_a_perturbation(solo,
+                                                                                  acquired):
+    """The trot FEL runs on (its reference acquired): rho 0.76 measured after 20 cycles."""
     gait = TrotGait()
-    res = trot_jacobian(solo, gait, cycles=12, eps=(2e-3,))
+    q0 = solo.standing()
+    ctl = TrotController(solo, q0, gait=gait, correction=acquired.correction)
+    res = trot_jacobian(solo, gait, cycles=12, eps=(2e-3,), controller=ctl)
     assert res.rho < 0.9
     # the linear map predicts a random perturbation off the basis directions
-    q0 = solo.standing()
-    ref = reach_section(solo, TrotController(solo, q0, gait=gait), q0, 12)
+    ref = reach_section(solo, ctl, q0, 12)
     T = section_tangent(solo, ref)
     rng = np.random.default_rng(7)
     d = T @ rng.standard_normal(T.shape[1])

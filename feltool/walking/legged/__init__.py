@@ -4,8 +4,10 @@ rigid impact with unilateral contacts, a QP in the impulses (:mod:`.impact`), th
 contact checks of the planar walker generalised to 3D (:mod:`.checks`), the standing controller
 with its QP allocation under the stance contacts (:mod:`.control`), feet leaving and reaching
 the ground (:mod:`.events`), the closed loop that steps the robot standing, pushed, on a
-stance schedule (:mod:`.stand`), and a trot on it: a phase per diagonal pair and whole-body
-inverse dynamics (:mod:`.trot`).
+stance schedule (:mod:`.stand`), a trot on it: a phase per diagonal pair and whole-body
+inverse dynamics (:mod:`.trot`), its Poincaré map (:mod:`.poincare`), feedback error learning
+on it in an unknown world (:mod:`.learn`), and MuJoCo as its plant (:mod:`.mujoco_plant`,
+:mod:`.mujoco_stand`).
 
 Imports from feltool: ``walking.checks`` (the walker's :class:`NotWalking` and its kinds) and
 what the rest of ``walking`` may import (``robot``, ``dynamics``, ``errors``).

@@ -50,6 +50,7 @@ motors spend on feedback.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,6 +59,7 @@ from feltool.errors import InputError
 from feltool.motion import spectral
 from feltool.walking.legged.model import LeggedModel, Payload, with_payload
 from feltool.walking.legged.mujoco_stand import stand_mujoco
+from feltool.walking.legged.orbit import ReferenceCorrection, acquire_orbit
 from feltool.walking.legged.stand import StandLog, stand
 from feltool.walking.legged.trot import TrotController, TrotGait
 
@@ -153,7 +155,6 @@ class LearningTrotController(TrotController):
             self.learned = PhaseFeedforward(0, self.legged.nv)
         self.cycle = -1          # the cycle under way (-1: before the first)
         self._t_cycle = 0.0
-        self._steps = 0
         self._last: tuple[float, float, np.ndarray] | None = None  # t, phi, feedback
         self._phi = 0.0
         self._share_sq, self._share_time = 0.0, 0.0
@@ -169,16 +170,14 @@ class LearningTrotController(TrotController):
                 self.learned.observe(phi0, fb0, t - t0)
                 self._share_sq += (t - t0) * share0 ** 2
                 self._share_time += t - t0
-        if g.steps != self._steps and g.steps % 2 == 0 \
-                and g.t_switch >= g.start + g.ramp:  # (FL, HR) down: a cycle ends
+        if g.t_cycle is not None and g.t_cycle != self._t_cycle:  # a cycle ends
             if self.cycle >= 0:
                 self.feedback_rms.append(self.learned.update(self.cycle >= self.learn_from))
                 self.share_rms.append(np.sqrt(self._share_sq / max(self._share_time, 1e-300)))
-                self.cycle_times.append((self._t_cycle, g.t_switch))
+                self.cycle_times.append((self._t_cycle, g.t_cycle))
             self._share_sq, self._share_time = 0.0, 0.0
             self.cycle += 1
-            self._t_cycle = g.t_switch
-        self._steps = g.steps
+            self._t_cycle = g.t_cycle
         self._phi = self._phase(t)
 
     def feedforward(self) -> np.ndarray:
@@ -220,7 +219,9 @@ class TrotLearning:
 def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, change: int = 3,
                seed: int = 0, learn: bool = True, plant: str = "pinocchio",
                gait: TrotGait | None = None, rate_hz: float = 1000.0,
-               impact_window: float = 1e-4, start_speed: float = 1.0) -> TrotLearning:
+               impact_window: float = 1e-4, start_speed: float = 1.0,
+               correction: ReferenceCorrection | None = None, acquire: int = 4
+               ) -> TrotLearning:
     """Trot ``cycles`` cycles learning the feedforward, the robot carrying a payload of
     ``payload`` times its mass on its base (a point mass at its origin,
     :class:`~feltool.walking.legged.model.Payload`) from the start of cycle
@@ -235,13 +236,21 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
             (:func:`~feltool.walking.legged.mujoco_stand.stand_mujoco`, soft contacts; the
             impact window does not apply).
         gait: The trot (default :class:`TrotGait` ``()``).
+        correction: The reference's correction acquired on the known model
+            (:func:`~feltool.walking.legged.orbit.acquire_orbit`, the same for every seed:
+            pass it to save its time); None: acquired here in ``acquire`` rounds (0: the plan
+            as it is).
     """
     if plant not in ("pinocchio", "mujoco"):
         raise InputError(f"plant {plant!r}: 'pinocchio' or 'mujoco'")
     gait = TrotGait() if gait is None else gait
     q0 = legged.standing()
-    ctl = LearningTrotController(legged, q0, gait=gait,
+    if correction is None and acquire > 0:
+        correction = acquire_orbit(legged, gait, rounds=acquire,
+                                   impact_window=impact_window).correction
+    ctl = LearningTrotController(legged, q0, gait=copy.deepcopy(gait), correction=correction,
                                  learn_from=0 if learn else np.iinfo(np.int64).max)
+    gait = ctl.gait
     load = Payload(payload * legged.mass)
     rng = np.random.default_rng(seed)
     v0 = np.zeros(legged.nv)
