@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 import pinocchio as pin  # noqa: E402
 
 from feltool.walking.legged.model import load_solo12  # noqa: E402
-from feltool.walking.legged.stand import Push, stand  # noqa: E402
+from feltool.walking.legged.stand import Push, lowest_swing_apex, stand  # noqa: E402
 from feltool.walking.legged.trot import PAIRS, TrotController, TrotGait  # noqa: E402
 
 
@@ -84,16 +84,7 @@ def run(solo, seed: int, duration: float, speed: float, push_n: float,
     result = "physical" if log.not_walking is None else f"{log.kind} at {log.t[-1]:.3f} s"
     half = len(log.t) // 2
     mean = (log.q[-1, 0] - log.q[half, 0]) / max(log.t[-1] - log.t[half], 1e-9)
-    heights = np.array([solo.foot_positions(x)[:, 2] for x in log.q])
-    # each swing's apex (a foot in the air from one control step to its next touchdown), the
-    # lowest of them: every foot lifts off
-    air = np.isnan(log.forces[:, :, 2])
-    apex = np.inf
-    for j in range(air.shape[1]):
-        edges = np.flatnonzero(np.diff(np.r_[0, air[:, j].astype(int), 0]))
-        for a, b in zip(edges[::2], edges[1::2]):
-            if b < len(log.t):  # a finished swing
-                apex = min(apex, float(heights[a:b, j].max()))
+    apex = lowest_swing_apex(solo, log)  # every foot lifts off
     d0, rate, floor = section(log, gait)
     return (f"{seed:4d} {when:5.2f} {np.degrees(angle):4.0f} {result:22s} "
             f"{log.t[-1] + 1e-3:6.2f} {mean:6.3f} "

@@ -29,12 +29,9 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from feltool.walking.legged.model import (
-    Payload,  # noqa: E402
-    load_solo12,  # noqa: E402
-)
+from feltool.walking.legged.model import Payload, load_solo12  # noqa: E402
 from feltool.walking.legged.mujoco_stand import stand_mujoco  # noqa: E402
-from feltool.walking.legged.stand import Push  # noqa: E402
+from feltool.walking.legged.stand import Push, lowest_swing_apex  # noqa: E402
 from feltool.walking.legged.trot import TrotController, TrotGait  # noqa: E402
 
 
@@ -60,14 +57,7 @@ def run(solo, seed: int, duration: float, speed: float, push_n: float,
     result = "physical" if log.not_walking is None else f"{log.kind} at {log.t[-1]:.3f} s"
     half = len(log.t) // 2
     mean = (log.q[-1, 0] - log.q[half, 0]) / max(log.t[-1] - log.t[half], 1e-9)
-    heights = np.array([solo.foot_positions(x)[:, 2] for x in log.q])
-    air = np.isnan(log.forces[:, :, 2])
-    apex = np.inf
-    for j in range(air.shape[1]):
-        edges = np.flatnonzero(np.diff(np.r_[0, air[:, j].astype(int), 0]))
-        for a, b in zip(edges[::2], edges[1::2]):
-            if b < len(log.t):  # a finished swing
-                apex = min(apex, float(heights[a:b, j].max()))
+    apex = lowest_swing_apex(solo, log)  # every foot lifts off
     line = (f"{seed:4d} {when:5.2f} {np.degrees(angle):4.0f} {result:24s} "
             f"{log.t[-1] + 1e-3:6.2f} {mean:6.3f} "
             f"{np.abs(log.roll).max():7.4f} {np.abs(log.pitch).max():7.4f} "

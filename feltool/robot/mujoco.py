@@ -159,6 +159,24 @@ class MujocoPlant:
         self.model.geom_conaffinity[self.feet[foot]] = 1 if on else 0
 
 
+def urdf_settings(mujoco: Any, spec: Any, timestep: float, integrator: str,
+                  gravity: np.ndarray) -> None:
+    """Set ``spec``'s compiler and options so that MuJoCo's dynamics are the URDF's (module
+    doc): exact inertias, fixed links kept, visuals discarded, semi-implicit Euler without
+    ``eulerdamp`` (or ``rk4``), an elliptic cone, ``timestep`` [s] and ``gravity`` [m/s^2]."""
+    c = spec.compiler
+    c.fusestatic, c.discardvisual, c.balanceinertia = False, True, False
+    c.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+    c.boundmass, c.boundinertia = 0.0, MIN_INERTIA
+    o = spec.option
+    o.timestep = timestep
+    o.integrator = (mujoco.mjtIntegrator.mjINT_RK4 if integrator == "rk4"
+                    else mujoco.mjtIntegrator.mjINT_EULER)
+    o.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+    o.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    o.gravity = np.array(gravity, float)
+
+
 def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
                    feet: dict[str, int] | None = None, friction: float = 1.0,
                    gravity: np.ndarray | None = None, integrator: str = "euler",
@@ -189,17 +207,8 @@ def compile_mujoco(robot: Robot, timestep: float, base: list[str] | None = None,
         spec = mujoco.MjSpec.from_file(str(robot.urdf_path))
     except Exception as exc:
         raise RobotError(f"MuJoCo cannot read '{robot.urdf_path}': {exc}") from None
-    c = spec.compiler
-    c.fusestatic, c.discardvisual, c.balanceinertia = False, True, False
-    c.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
-    c.boundmass, c.boundinertia = 0.0, MIN_INERTIA
-    o = spec.option
-    o.timestep = timestep
-    o.integrator = (mujoco.mjtIntegrator.mjINT_RK4 if integrator == "rk4"
-                    else mujoco.mjtIntegrator.mjINT_EULER)
-    o.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
-    o.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    o.gravity = np.array(robot.model.gravity.linear if gravity is None else gravity, float)
+    urdf_settings(mujoco, spec, timestep, integrator,
+                  robot.model.gravity.linear if gravity is None else gravity)
     for j in spec.joints:
         j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
         j.armature = 0.0

@@ -41,7 +41,7 @@ import numpy as np
 import pinocchio as pin
 
 from feltool.errors import ConfigError, RobotError
-from feltool.robot.mujoco import FOOT_RADIUS, MIN_INERTIA, import_mujoco
+from feltool.robot.mujoco import FOOT_RADIUS, MIN_INERTIA, import_mujoco, urdf_settings
 from feltool.walking.legged.model import LeggedModel, Payload
 
 TIMECONST = 0.002   #: contact solref time constant [s] (raised to two timesteps)
@@ -112,18 +112,8 @@ class LeggedMujoco:
             spec = mujoco.MjSpec.from_string(_urdf_without_geometry(path))
         except Exception as exc:
             raise RobotError(f"MuJoCo cannot read '{path}': {exc}") from None
-        c = spec.compiler
-        c.fusestatic, c.discardvisual, c.balanceinertia = False, False, False
-        c.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
-        c.boundmass, c.boundinertia = 0.0, MIN_INERTIA
-        o = spec.option
-        o.timestep = timestep
-        o.integrator = (mujoco.mjtIntegrator.mjINT_RK4 if integrator == "rk4"
-                        else mujoco.mjtIntegrator.mjINT_EULER)
-        o.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
-        o.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-        o.impratio, o.noslip_iterations = impratio, noslip_iterations
-        o.gravity = np.array(legged.model.gravity.linear, float)
+        urdf_settings(mujoco, spec, timestep, integrator, legged.model.gravity.linear)
+        spec.option.impratio, spec.option.noslip_iterations = impratio, noslip_iterations
         for j in spec.joints:
             j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
             j.armature, j.frictionloss, j.damping = 0.0, 0.0, np.zeros(3)

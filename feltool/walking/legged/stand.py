@@ -67,6 +67,21 @@ class StandLog:
     end: StandState | None = None
 
 
+def lowest_swing_apex(legged: LeggedModel, log: StandLog) -> float:
+    """The lowest apex [m] among the finished swings of ``log`` (a foot in the air from one
+    control step to its touchdown): every foot that stepped lifted at least this high (inf:
+    no swing finished)."""
+    heights = np.array([legged.foot_positions(x)[:, 2] for x in log.q])
+    air = np.isnan(log.forces[:, :, 2])
+    apex = np.inf
+    for j in range(air.shape[1]):
+        edges = np.flatnonzero(np.diff(np.r_[0, air[:, j].astype(int), 0]))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b < len(log.t):
+                apex = min(apex, float(heights[a:b, j].max()))
+    return apex
+
+
 class _Stop(Exception):
     """Ends a rollout at a touchdown (``until_touchdown``)."""
 
