@@ -160,12 +160,14 @@ class MujocoPlant:
 
 
 def urdf_settings(mujoco: Any, spec: Any, timestep: float, integrator: str,
-                  gravity: np.ndarray) -> None:
+                  gravity: np.ndarray, discard_visual: bool = True) -> None:
     """Set ``spec``'s compiler and options so that MuJoCo's dynamics are the URDF's (module
-    doc): exact inertias, fixed links kept, visuals discarded, semi-implicit Euler without
-    ``eulerdamp`` (or ``rk4``), an elliptic cone, ``timestep`` [s] and ``gravity`` [m/s^2]."""
+    doc): exact inertias, fixed links kept, visual-only geoms discarded (unless
+    ``discard_visual`` is False: a geom added without collisions stays), semi-implicit Euler
+    without ``eulerdamp`` (or ``rk4``), an elliptic cone, ``timestep`` [s] and ``gravity``
+    [m/s^2]."""
     c = spec.compiler
-    c.fusestatic, c.discardvisual, c.balanceinertia = False, True, False
+    c.fusestatic, c.discardvisual, c.balanceinertia = False, discard_visual, False
     c.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
     c.boundmass, c.boundinertia = 0.0, MIN_INERTIA
     o = spec.option

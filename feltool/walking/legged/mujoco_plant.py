@@ -112,7 +112,8 @@ class LeggedMujoco:
             spec = mujoco.MjSpec.from_string(_urdf_without_geometry(path))
         except Exception as exc:
             raise RobotError(f"MuJoCo cannot read '{path}': {exc}") from None
-        urdf_settings(mujoco, spec, timestep, integrator, legged.model.gravity.linear)
+        urdf_settings(mujoco, spec, timestep, integrator, legged.model.gravity.linear,
+                      discard_visual=False)
         spec.option.impratio, spec.option.noslip_iterations = impratio, noslip_iterations
         for j in spec.joints:
             j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
