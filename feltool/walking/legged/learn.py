@@ -220,7 +220,8 @@ class TrotLearning:
 def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, change: int = 3,
                seed: int = 0, learn: bool = True, plant: str = "pinocchio",
                gait: TrotGait | None = None, rate_hz: float = 1000.0,
-               impact_window: float = 1e-4, start_speed: float = 1.0) -> TrotLearning:
+               impact_window: float = 1e-4, start_speed: float = 1.0,
+               feedforward: PhaseFeedforward | None = None) -> TrotLearning:
     """Trot ``cycles`` cycles learning the feedforward, the robot carrying a payload of
     ``payload`` times its mass on its base (a point mass at its origin,
     :class:`~feltool.walking.legged.model.Payload`) from the start of cycle
@@ -235,13 +236,16 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
             (:func:`~feltool.walking.legged.mujoco_stand.stand_mujoco`, soft contacts; the
             impact window does not apply).
         gait: The trot (default :class:`TrotGait` ``()``).
+        feedforward: The learned feedforward to start from and learn into (its harmonics and
+            rate; default ``PhaseFeedforward(0, nv)``: the cycle's mean at rate 0.5).
     """
     if plant not in ("pinocchio", "mujoco"):
         raise InputError(f"plant {plant!r}: 'pinocchio' or 'mujoco'")
     gait = TrotGait() if gait is None else gait
     q0 = legged.standing()
     ctl = LearningTrotController(legged, q0, gait=gait,
-                                 learn_from=0 if learn else np.iinfo(np.int64).max)
+                                 learn_from=0 if learn else np.iinfo(np.int64).max,
+                                 learned=feedforward)
     load = Payload(payload * legged.mass)
     rng = np.random.default_rng(seed)
     v0 = np.zeros(legged.nv)
