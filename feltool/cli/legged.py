@@ -36,7 +36,13 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     every cycle and met ``success:``, 1 otherwise, 2 on bad input."""
     from feltool.cli.common import progress_mode
     from feltool.config.legged import parse_legged_config
-    from feltool.runs.legged import exit_code, print_summary, run_legged
+    from feltool.runs.legged import (
+        exit_code,
+        load_legged_robot,
+        print_summary,
+        refuse_taken,
+        run_legged,
+    )
     from feltool.runs.runstate import default_out_dir
 
     for option, why in _REFUSED.items():
@@ -47,9 +53,13 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     if args.workers not in (None, 1):
         print("feltool: note: a legged run's seeds run one after another (--workers ignored)",
               file=sys.stderr)
+    legged = load_legged_robot(cfg, path.parent, str(path))  # bad input: nothing written
+    if args.out is not None:
+        refuse_taken(args.out)
     out_dir = args.out or default_out_dir(cfg.name)
     print(f"feltool: legged trot, {cfg.plant.simulator} plant (one seed at a time)", flush=True)
-    summary = run_legged(cfg, raw, path, out_dir, progress=sys.stderr if bar or lines else None)
+    summary = run_legged(cfg, raw, path, out_dir, progress=sys.stderr if bar or lines else None,
+                         legged=legged)
     print_summary(summary, out_dir)
     return exit_code(summary)
 

@@ -70,18 +70,12 @@ class LeggedWalkingConfig(Strict):
 
     @field_validator("feet")
     @classmethod
-    def _four_feet(cls, feet):
+    def _in_order(cls, feet):
+        """FL, FR, HL, HR first (the order the robot's feet are listed in), others after
+        (refused by :meth:`LeggedExperimentConfig.problems`, naming each)."""
         if feet is None:
             return feet
-        unknown = [f for f in feet if f not in TROT_FEET]
-        if unknown:
-            raise ValueError(f"unknown foot name {', '.join(map(repr, unknown))}: the trot's "
-                             f"feet are {', '.join(TROT_FEET)} (front/hind, left/right)")
-        missing = [f for f in TROT_FEET if f not in feet]
-        if missing:
-            raise ValueError(f"the trot needs all four feet {', '.join(TROT_FEET)}; missing "
-                             f"{', '.join(missing)}")
-        return {f: feet[f] for f in TROT_FEET}
+        return {**{f: feet[f] for f in TROT_FEET if f in feet}, **feet}
 
 
 class LeggedSimConfig(Strict):
@@ -184,7 +178,16 @@ class LeggedExperimentConfig(Strict):
     def problems(self) -> list[tuple[str, str]]:
         """Checks across fields, as ``(yaml_path, message)`` pairs."""
         out = []
-        if self.robot not in NAMED_ROBOTS and self.walking.feet is None:
+        feet = self.walking.feet
+        if feet is not None:
+            out += [(f"walking.feet.{f}", f"unknown foot name '{f}': the trot's feet are "
+                                          f"{', '.join(TROT_FEET)} (front/hind, left/right)")
+                    for f in feet if f not in TROT_FEET]
+            missing = [f for f in TROT_FEET if f not in feet]
+            if missing:
+                out.append(("walking.feet", f"the trot needs all four feet "
+                                            f"{', '.join(TROT_FEET)}; missing {', '.join(missing)}"))
+        if self.robot not in NAMED_ROBOTS and feet is None:
             out.append(("walking.feet", "required for a URDF robot: FL, FR, HL, HR, each "
                                         "{frame: NAME} or {link: NAME, offset: [x, y, z]}"))
         if self.success.ratio_from == "change" and self.payload is None:

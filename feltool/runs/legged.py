@@ -33,7 +33,8 @@ from feltool.runs.rundir import atomic_write, save_npz, write_by, write_json, wr
 from feltool.runs.runstate import (
     NOTHING_WRITTEN,
     RunLock,
-    refuse_existing,
+    describe_contents,
+    has_contents,
     set_state,
 )
 
@@ -152,17 +153,31 @@ def failure(cfg: LeggedExperimentConfig, entry: dict[str, Any], cycles: int) -> 
     return None
 
 
+def refuse_taken(out_dir: Path) -> None:
+    """Raise :class:`InputError` unless ``out_dir`` is new or empty (a run directory belongs
+    to one command; a legged run cannot be resumed yet)."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"--out {out_dir}: exists and is not a directory")
+    if has_contents(out_dir):
+        raise InputError(f"--out {out_dir}: already holds {describe_contents(out_dir)}; a run "
+                         "directory belongs to one command: choose a new --out (a legged run "
+                         "cannot be resumed yet)")
+
+
 def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_dir: Path,
                seeds: list[int] | None = None, cycles: int | None = None,
-               progress: TextIO | None = None) -> dict[str, Any]:
+               progress: TextIO | None = None, legged=None) -> dict[str, Any]:
     """Run every seed one after another into ``out_dir`` (new or empty: a run directory
-    belongs to one command), write it, return the summary."""
+    belongs to one command), write it, return the summary (``legged``: the config's robot,
+    already loaded by :func:`load_legged_robot`)."""
     seeds = list(seeds if seeds is not None else cfg.seed_list)
     cycles = cycles or cfg.sim.cycles
     base_dir = source.parent if source is not None else None
-    legged = load_legged_robot(cfg, base_dir, str(source) if source else None)  # bad input fails before anything is written
+    if legged is None:  # bad input fails before anything is written
+        legged = load_legged_robot(cfg, base_dir, str(source) if source else None)
     out_dir = Path(out_dir)
-    refuse_existing(out_dir, "run.json", "a new --out (a legged run cannot be resumed yet)")
+    refuse_taken(out_dir)
     try:
         lock = RunLock(out_dir).acquire()
     except WriteError as exc:
@@ -302,5 +317,5 @@ def check_not_resumable(out_dir: Path) -> None:
                          "resumed yet; start it again with a new --out")
 
 
-__all__ = ["check_not_resumable", "describe", "exit_code", "load_legged_robot",
-           "print_summary", "run_legged", "run_seed"]
+__all__ = ["check_not_resumable", "describe", "exit_code", "load_legged_robot", "print_summary",
+           "refuse_taken", "run_legged", "run_seed"]
