@@ -115,7 +115,8 @@ class LeggedPayloadConfig(Strict):
 
 class LeggedLearningConfig(Strict):
     """FEL of the trot's feedforward: a Fourier series in the gait's phase per generalized
-    coordinate, moved each cycle towards the feedback that moves the robot (docs/legged.md)."""
+    coordinate, moved each cycle towards the feedback that moves the robot
+    (feltool/walking/legged/learn.py)."""
 
     enabled: bool = Field(True, description="false: the same rollout without learning (the "
                           "feedback the trot needs).")
@@ -124,7 +125,7 @@ class LeggedLearningConfig(Strict):
         "the feedforward per cycle.")
     harmonics: int = Field(0, ge=0, le=20, description="Highest harmonic M of the learned "
         "series [-]; 0: the cycle's mean (higher harmonics lag the base's PDs by more than 90 "
-        "degrees and grew the feedback, docs/legged.md).")
+        "degrees and grew the feedback, feltool/walking/legged/learn.py).")
 
 
 class LeggedExperimentConfig(Strict):
