@@ -272,9 +272,10 @@ def draw_feedback(out_dir: Path, results: list[dict], change: int | None) -> Pat
     return path
 
 
-def print_summary(summary: dict[str, Any], out_dir: Path, out: TextIO = sys.stdout) -> None:
-    """The run's table: per seed, whether it trotted, its feedback around the change, the
-    ratio; the verdict."""
+def print_summary(summary: dict[str, Any], out_dir: Path, out: TextIO | None = None) -> None:
+    """The run's table (to ``out``, default stdout): per seed, whether it trotted, its
+    feedback around the change, the ratio; the verdict."""
+    out = sys.stdout if out is None else out
     fmt = lambda x, f: "-" if x is None else format(x, f)  # noqa: E731
     agg = summary["aggregate"]
     print(f"{summary['config']}: {agg['n_seeds']} seeds x {summary['cycles']} cycles, "
