@@ -278,7 +278,8 @@ def print_summary(summary: dict[str, Any], out_dir: Path, out: TextIO | None = N
     out = sys.stdout if out is None else out
     fmt = lambda x, f: "-" if x is None else format(x, f)  # noqa: E731
     agg = summary["aggregate"]
-    print(f"{summary['config']}: {agg['n_seeds']} seeds x {summary['cycles']} cycles, "
+    n = agg["n_seeds"]
+    print(f"{summary['config']}: {n} seed{'' if n == 1 else 's'} x {summary['cycles']} cycles, "
           f"{summary['robot']} on {summary['plant']}, payload from cycle "
           f"{fmt(summary['change_cycle'], 'd')}; summed feedback [N m]", file=out)
     print(f"  {'seed':>4} {'cycles':>6} {'outcome':<12} {'fb_first':>9} {'fb_before':>9} "
