@@ -54,12 +54,13 @@ def test_a_short_run_writes_its_directory_and_the_feedback_falls_after_the_chang
     file, the summary's numbers, and the learned feedforward bringing the feedback down."""
     out = tmp_path / "run"
     proc = feltool("run", str(_config(tmp_path, payload__cycle=2)), "--seeds", "0-1",
-                   "--cycles", "6", "--out", str(out), "--no-progress")
+                   "--cycles", "6", "--out", str(out), "--no-progress", "--html")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "Traceback" not in proc.stderr
     assert "walked every cycle: 2/2" in proc.stdout
     for name in ("config.yaml", "run.json", "metrics.csv", "summary.json", "params/seed-0.npz",
-                 "params/seed-1.npz", "figures/legged_feedback.png"):
+                 "params/seed-1.npz", "traces/seed-0.npz", "figures/legged_feedback.png",
+                 "rollout.html"):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     assert summary["verdict"] == "learned" and summary["change_cycle"] == 2
@@ -86,6 +87,33 @@ def test_a_short_run_writes_its_directory_and_the_feedback_falls_after_the_chang
         assert p["C"].shape == (1, 18) and np.any(p["C"] != 0)
         assert list(p["coordinates"][6:9]) == ["FL_HAA", "FL_HFE", "FL_KFE"]
     assert yaml.safe_load((out / "config.yaml").read_text())["payload"]["cycle"] == 2
+    _check_rollout_html(out)
+
+
+def _check_rollout_html(out: Path) -> None:
+    """rollout.html draws Solo-12's meshes (every visual of example-robot-data's model) and
+    moves them along seed 0's recorded trot: the base goes forward at the trot's speed."""
+    import example_robot_data as erd
+
+    from .test_viewer import _commands
+
+    page = (out / "rollout.html").read_text(encoding="utf-8")
+    assert "payload on (cycle 2)" in page and "last cycles" in page
+    cmds = _commands(page)
+    visuals = erd.load("solo12").visual_model.geometryObjects
+    objects = [c["path"] for c in cmds if c["type"] == "set_object"]
+    assert len(objects) == len(visuals) > 10
+    (anim,) = [c for c in cmds if c["type"] == "set_animation"]
+    base = next(a for a in anim["animations"] if "base_link" in a["path"])
+    track = {t["name"]: t for t in base["clip"]["tracks"]}[".position"]
+    times, x = np.array(track["times"]), np.array(track["values"]).reshape(-1, 3)[:, 0]
+    assert np.all(np.diff(times) > 0)
+    with np.load(out / "traces" / "seed-0.npz", allow_pickle=False) as tr:
+        q, t = tr["q"], tr["t"]
+    assert np.allclose(np.diff(t), 0.02) and q.shape[1] == 19
+    last = times > times[len(times) // 2 + 1]  # the second clip, "last cycles"
+    speed = (x[last][-2] - x[last][0]) / (times[last][-2] - times[last][0])
+    assert speed == pytest.approx(0.3, abs=0.03)
 
 
 def test_a_missed_success_bound_exits_1_and_keeps_the_results(tmp_path, capsys):

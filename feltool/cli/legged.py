@@ -27,8 +27,7 @@ def legged_raw(config: str, overrides: list[str]) -> tuple[Path, dict[str, Any]]
 _REFUSED = {"resume": "a legged run cannot be resumed yet; start it again with a new --out",
             "view": "the live viewer does not show legged robots yet",
             "zmq_url": "the live viewer does not show legged robots yet",
-            "realtime": "the live viewer does not show legged robots yet",
-            "html": "the rollout HTML does not show legged robots yet"}
+            "realtime": "the live viewer does not show legged robots yet"}
 
 
 def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]) -> int:
@@ -61,6 +60,11 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     summary = run_legged(cfg, raw, path, out_dir, progress=sys.stderr if bar or lines else None,
                          legged=legged)
     print_summary(summary, out_dir)
+    if args.html:
+        from feltool.viewer.legged import visual_robot, write_legged_html
+
+        robot = visual_robot(cfg.robot, cfg.urdf_path(path.parent))
+        print(f"  rollout: {write_legged_html(out_dir, robot)}")
     return exit_code(summary)
 
 

@@ -12,6 +12,8 @@
                          first, last, ratios, speed, contact statistics; the run's verdict
     params/seed-N.npz    the learned Fourier coefficients C (2M+1, nv), the coordinates'
                          names, feedback per cycle, shares, cycle times (allow_pickle=False)
+    traces/seed-N.npz    the rollout's configurations q (n, nq) at TRACE_HZ, uniform times t
+                         [s] (the nearest control step's), for the viewer (rollout.html)
     figures/legged_feedback.png   summed feedback per cycle, every seed
 """
 
@@ -40,6 +42,20 @@ from feltool.runs.runstate import (
 
 #: The free flyer's six velocity coordinates (base frame), before the motors
 BASE_COORDINATES = ("base_vx", "base_vy", "base_vz", "base_wx", "base_wy", "base_wz")
+
+#: The rate the rollout's configurations are kept at for the viewer [Hz]
+TRACE_HZ = 50.0
+
+
+def trace(t: np.ndarray, q: np.ndarray, rate_hz: float = TRACE_HZ) -> dict[str, np.ndarray]:
+    """The configurations ``q`` ``(n, nq)`` at uniform times ``1 / rate_hz`` apart [s], each
+    the last control step's at or before that time (the log's steps are uneven at events)."""
+    t, q = np.asarray(t, float), np.asarray(q, float)
+    if len(t) == 0:
+        return {"t": np.zeros(0), "q": np.zeros((0, q.shape[1] if q.ndim == 2 else 0))}
+    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
+    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
+    return {"t": grid, "q": q[idx]}
 
 
 def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
@@ -130,7 +146,8 @@ def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int) -> dic
     params = {"C": ctl.learned.C, "coordinates": np.array(BASE_COORDINATES + tuple(legged.motors)),
               "feedback": fb, "share_rms": shares, "cycle_times": times,
               "harmonics": np.array(L.harmonics), "rate": np.array(L.rate)}
-    return {"rows": rows, "params": params, "entry": entry}
+    return {"rows": rows, "params": params, "entry": entry,
+            "trace": {**trace(run.log.t, run.log.q), "cycle_times": times}}
 
 
 def failure(cfg: LeggedExperimentConfig, entry: dict[str, Any], cycles: int) -> str | None:
@@ -197,6 +214,7 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
             r = run_seed(cfg, legged, seed, cycles)
             results.append(r)
             save_npz(out_dir / "params" / f"seed-{seed}.npz", r["params"])
+            save_npz(out_dir / "traces" / f"seed-{seed}.npz", r.pop("trace"))
             if progress is not None:
                 e = r["entry"]
                 print(f"feltool: seed {seed} ({i + 1}/{len(seeds)}): {e['cycles']} cycles, "
