@@ -187,7 +187,8 @@ def test_a_urdf_robot_with_link_and_offset_feet_checks(tmp_path, capsys):
 
 
 def test_options_the_legged_run_does_not_take_exit_2(tmp_path, capsys):
-    for extra in (["--html"], ["--view"]):
-        assert main(["run", str(SHIPPED), "--out", str(tmp_path / "x"), *extra]) == 2
+    for extra in (["--realtime"], ["--view"], ["--resume"]):
+        assert main(["run", str(SHIPPED), "--out", str(tmp_path / "x"), "--cycles", "1",
+                     "--seeds", "0", *extra]) == 2
         assert "legged" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
