@@ -8,9 +8,13 @@ from feltool.cli.common import load_config, print_warnings, subcommand
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from feltool.cli.legged import check_legged, legged_raw
     from feltool.errors import ConfigError
     from feltool.experiment.checks import experiment_problems
 
+    legged = legged_raw(args.config, list(args.set or []))
+    if legged is not None:  # walking.base: free_flyer (docs/legged.md)
+        return check_legged(*legged)
     exp, _ = load_config(args.config, list(args.set or []), check_targets=False)
     cfg = exp.config
     print_warnings(exp.robot)

@@ -39,6 +39,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     out_dir = args.out if args.resume in (None, True) else Path(args.resume)
     if resume and out_dir is None:
         raise InputError("--resume needs the run directory: --resume RUN_DIR (or --out RUN_DIR)")
+    if resume:
+        from feltool.runs.legged import check_not_resumable
+
+        check_not_resumable(out_dir)
     if args.config is None:  # resume with the stored config
         if args.set or args.seeds:
             raise InputError("--set/--seeds change the config: give the CONFIG too, so the "
@@ -51,6 +55,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             overrides.append(f"sim.cycles={args.cycles}")
         if args.seeds is not None:
             overrides.append(f"seeds={parse_seeds(args.seeds)}")
+        from feltool.cli.legged import legged_raw, run_legged_command
+
+        legged = legged_raw(args.config, overrides)
+        if legged is not None:  # walking.base: free_flyer, the trot (docs/legged.md)
+            return run_legged_command(args, *legged)
         exp, raw = load_config(args.config, overrides)
         print_warnings(exp.robot)
         refuse_what_check_refuses(exp)

@@ -12,6 +12,7 @@ import typing
 from pydantic import BaseModel
 
 from feltool.config.experiment import ExperimentConfig
+from feltool.config.legged import LeggedExperimentConfig
 from feltool.files import atomic_write
 
 HEADER = """# Configuration reference
@@ -77,9 +78,26 @@ def _default(field) -> str:
     return f"`{field.default!r}`" if field.default is not None else "`null`"
 
 
+LEGGED = """# Legged experiments (`walking.base: free_flyer`)
+
+A config whose `walking.base` is `free_flyer` is a 3D legged experiment with its own schema
+(below, from `feltool/config/legged.py`): a robot on a free flyer with the point feet FL, FR,
+HL, HR trots, learning its feedforward by FEL while a payload its model does not know is put
+on (docs/legged.md, "From a config"; `configs/legged/solo12_trot.yaml`). The arms' and
+walkers' fields above (`joints`, `period_s`, `primitives`, ...) do not apply to it and are
+unknown fields there. Cycles are numbered from 0: cycle 0 is the first whole cycle after the
+speed ramp.
+
+"""
+
+
 def render() -> str:
     parts = [HEADER]
-    for model in _models(ExperimentConfig, []):
+    arms = _models(ExperimentConfig, [])
+    legged = [m for m in _models(LeggedExperimentConfig, []) if m not in arms]
+    for model in arms + legged:
+        if model is LeggedExperimentConfig:
+            parts.append(LEGGED)
         parts.append(f"## {model.__name__}\n\n{(model.__doc__ or '').strip()}\n\n")
         parts.append("| field | type | default | description |\n|---|---|---|---|\n")
         for name, field in model.model_fields.items():

@@ -220,8 +220,8 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                seed: int = 0, learn: bool = True, plant: str = "pinocchio",
                gait: TrotGait | None = None, rate_hz: float = 1000.0,
                impact_window: float = 1e-4, start_speed: float = 1.0,
-               correction: ReferenceCorrection | None = None, acquire: int = 4
-               ) -> TrotLearning:
+               correction: ReferenceCorrection | None = None, acquire: int = 4,
+               feedforward: PhaseFeedforward | None = None) -> TrotLearning:
     """Trot ``cycles`` cycles learning the feedforward, the robot carrying a payload of
     ``payload`` times its mass on its base (a point mass at its origin,
     :class:`~feltool.walking.legged.model.Payload`) from the start of cycle
@@ -240,16 +240,19 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
             (:func:`~feltool.walking.legged.orbit.acquire_orbit`, the same for every seed:
             pass it to save its time); None: acquired here in ``acquire`` rounds (0: the plan
             as it is).
+        feedforward: The learned feedforward to start from and learn into (its harmonics and
+            rate; default ``PhaseFeedforward(0, nv)``: the cycle's mean at rate 0.5).
     """
     if plant not in ("pinocchio", "mujoco"):
         raise InputError(f"plant {plant!r}: 'pinocchio' or 'mujoco'")
     gait = TrotGait() if gait is None else gait
     q0 = legged.standing()
     if correction is None and acquire > 0:
-        correction = acquire_orbit(legged, gait, rounds=acquire,
-                                   impact_window=impact_window).correction
+        correction = acquire_orbit(legged, gait, rounds=acquire, impact_window=impact_window,
+                                   rate_hz=rate_hz).correction
     ctl = LearningTrotController(legged, q0, gait=copy.deepcopy(gait), correction=correction,
-                                 learn_from=0 if learn else np.iinfo(np.int64).max)
+                                 learn_from=0 if learn else np.iinfo(np.int64).max,
+                                 learned=feedforward)
     gait = ctl.gait
     load = Payload(payload * legged.mass)
     rng = np.random.default_rng(seed)

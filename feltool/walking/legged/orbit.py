@@ -73,7 +73,8 @@ class Acquisition:
 
 
 def record_cycle(legged: LeggedModel, controller: TrotController, q0: np.ndarray,
-                 cycle: int = 8, impact_window: float = 1e-4) -> tuple[ReferenceCorrection, float]:
+                 cycle: int = 8, impact_window: float = 1e-4, rate_hz: float = 1000.0
+                 ) -> tuple[ReferenceCorrection, float]:
     """Run a copy of ``controller`` (with its correction) on the known model from standing at
     ``q0`` and record its ``cycle``-th cycle after the ramp: the new correction (what the robot
     did minus the plan) and that cycle's summed feedback [N m]."""
@@ -101,7 +102,7 @@ def record_cycle(legged: LeggedModel, controller: TrotController, q0: np.ndarray
     ctl.observer = observe
     log = stand(legged, ctl, q0, duration=g.start + g.ramp + 2 * (cycle + 3) * g.period,
                 schedule=g.schedule, on_touchdown=g.touchdown, impact_window=impact_window,
-                until=lambda t: len(starts) > cycle + 1)
+                rate_hz=rate_hz, until=lambda t: len(starts) > cycle + 1)
     if log.not_walking is not None or len(starts) <= cycle + 1:
         raise AcquisitionError(f"the trot did not reach cycle {cycle} on the known model: "
                                f"{log.not_walking}")
@@ -114,17 +115,18 @@ def record_cycle(legged: LeggedModel, controller: TrotController, q0: np.ndarray
 
 def acquire_orbit(legged: LeggedModel, gait: TrotGait | None = None, rounds: int = 4,
                   cycle: int = 8, controller: TrotController | None = None,
-                  impact_window: float = 1e-4) -> Acquisition:
+                  impact_window: float = 1e-4, rate_hz: float = 1000.0) -> Acquisition:
     """``rounds`` rounds of the acquisition (module docstring) on the known model, from the
     plan (or ``controller``'s correction); the last round's correction and every round's
-    summed feedback (``rounds + 1`` values: the last one is the acquired reference's)."""
+    summed feedback (``rounds + 1`` values: the last one is the acquired reference's), at the
+    control rate ``rate_hz`` [Hz] of the runs it is for."""
     gait = TrotGait() if gait is None else gait
     q0 = legged.standing()
     ctl = TrotController(legged, q0, gait=copy.deepcopy(gait)) if controller is None \
         else copy.deepcopy(controller)
     feedback = []
     for _ in range(rounds + 1):
-        corr, fb = record_cycle(legged, ctl, q0, cycle, impact_window)
+        corr, fb = record_cycle(legged, ctl, q0, cycle, impact_window, rate_hz)
         feedback.append(fb)
         if len(feedback) <= rounds:
             ctl.correction = corr

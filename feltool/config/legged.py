@@ -1,0 +1,249 @@
+"""A legged experiment (``walking: {base: free_flyer}``): a 3D robot on a free flyer with four
+point feet, trotting, learning its feedforward by FEL while a payload its model does not know
+is put on (:func:`feltool.walking.legged.learn.learn_trot`; docs/legged.md, "From a config").
+
+A legged config is its own schema, :class:`LeggedExperimentConfig`, not a variant of the
+walkers' :class:`~feltool.config.experiment.ExperimentConfig`: the trot has no RMPs per joint,
+no ``joints:`` roles and no ``period_s`` of the motion (the gait's period is ``walking.gait``'s),
+so the walkers' required fields and cross-section rules do not apply. ``walking.base:
+free_flyer`` selects it (:func:`is_legged`), as issue 32 names it.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, ValidationError, field_validator
+
+from feltool.bounds import MAX_CYCLES, MAX_RATE_HZ, MAX_SEED, MAX_SEEDS
+from feltool.config.base import NonNegFloat, PositiveFloat, Strict
+from feltool.config.experiment import SuccessConfig
+from feltool.config.files import _pydantic_problems
+from feltool.config.walking import FootConfig
+from feltool.errors import ConfigError
+
+#: The trot's feet: front left, front right, hind left, hind right (diagonal pairs FL-HR, FR-HL)
+TROT_FEET = ("FL", "FR", "HL", "HR")
+
+#: The robots a legged config names without a URDF path
+NAMED_ROBOTS = ("solo12", "example-robot-data:solo12")
+
+
+class TrotGaitConfig(Strict):
+    """The trot (:class:`~feltool.walking.legged.trot.TrotGait`): the diagonal pairs (FL, HR)
+    and (FR, HL) alternate, each pair's switch an event (both its feet down)."""
+
+    speed: PositiveFloat = Field(0.3, le=5.0, description="Forward speed after the ramp, in "
+                                 "[m/s] (at most 5).")
+    period: PositiveFloat = Field(0.3, le=10.0, description="One cycle, both pairs stepping "
+                                  "once, in [s] (at most 10).")
+    ramp: PositiveFloat = Field(1.0, le=100.0, description="Time to reach the speed from "
+                                "standing, in [s] (a smoothstep).")
+    start: NonNegFloat = Field(0.1, le=100.0, description="Time standing on four feet before "
+                               "the first step, in [s].")
+    step_height: PositiveFloat = Field(0.04, le=1.0, description="The swing foot's apex above "
+                                       "the ground, in [m].")
+    sink: NonNegFloat = Field(0.003, le=0.1, description="How far below the ground the swing "
+                              "target ends, in [m].")
+    landing_speed: PositiveFloat = Field(0.2, le=5.0, description="The swing target's downward "
+                                         "speed at its end, in [m/s].")
+    raibert: NonNegFloat = Field(0.03, le=10.0, description="Raibert's gain on the base's "
+                                 "velocity error, in [s].")
+    approach_height: NonNegFloat = Field(0.005, le=0.5, description="The last height above the "
+        "ground the swing target covers in a straight line at the landing velocity, in [m].")
+    catch: Annotated[float, Field(gt=0, lt=1)] = Field(0.2, description="Fraction of a swing "
+        "after which the foot is wanted back on the ground [-], in (0, 1).")
+
+
+class LeggedWalkingConfig(Strict):
+    """The legged robot's base and feet, and its gait."""
+
+    base: Literal["free_flyer"] = Field(description="free_flyer: the robot on Pinocchio's free "
+        "flyer (x, y, z, orientation), a 3D legged experiment (this schema).")
+    feet: dict[str, FootConfig] | None = Field(None, description="The point feet FL, FR, HL, "
+        "HR (all four, no others), each a URDF frame ({frame: NAME}) or a link and an offset "
+        "in its frame ({link: NAME, offset: [x, y, z]} in [m]); required for a URDF robot, "
+        "default for solo12 its FL_FOOT, FR_FOOT, HL_FOOT, HR_FOOT frames.")
+    gait: TrotGaitConfig = Field(default_factory=TrotGaitConfig, description="The trot.")
+    acquire: int = Field(4, ge=0, le=20, description="Rounds of the reference's acquisition "
+        "on the known model before the seeds run, once for all of them [-] (the plan corrected "
+        "by what the robot did in a settled cycle, feltool/walking/legged/orbit.py); 0: the "
+        "plan as it is, whose own feedback is a floor FEL does not go below.")
+
+    @field_validator("feet")
+    @classmethod
+    def _in_order(cls, feet):
+        """FL, FR, HL, HR first (the order the robot's feet are listed in), others after
+        (refused by :meth:`LeggedExperimentConfig.problems`, naming each)."""
+        if feet is None:
+            return feet
+        return {**{f: feet[f] for f in TROT_FEET if f in feet}, **feet}
+
+
+class LeggedSimConfig(Strict):
+    """How the trot is simulated."""
+
+    rate_hz: PositiveFloat = Field(1000.0, ge=100.0, le=MAX_RATE_HZ, description="Control rate "
+        "in [Hz] (the plant is integrated by RK4 at it, the torque held), from 100.")
+    cycles: int = Field(150, ge=1, le=MAX_CYCLES, description="Cycles trotted per seed after the "
+        "ramp (a cycle: both pairs stepping once, from one (FL, HR) touchdown to the next; "
+        "numbered from 0).")
+    impact_window_s: NonNegFloat = Field(1e-4, le=0.01, description="plant pinocchio: the "
+        "Moreau-Jean window over which a touchdown impact is resolved, in [s] (0: "
+        "instantaneous; docs/legged.md, the trot).")
+    start_velocity_scale: NonNegFloat = Field(1.0, le=10.0, description="The seed's random "
+        "start velocity: standard normal draws times 0.05 m/s (base linear), 0.2 rad/s (base "
+        "angular, joints), times this [-]; 0: start at rest (every seed alike).")
+
+
+class LeggedPlantConfig(Strict):
+    """What simulates the robot; the controller's model is always the known rigid one."""
+
+    simulator: Literal["pinocchio", "mujoco"] = Field("pinocchio", description="pinocchio: the "
+        "rigid contact loop (unilateral impacts, every contact check); mujoco: the same URDF "
+        "compiled by MuJoCo with its soft contacts (docs/legged_mujoco.md; pip install "
+        "'feltool[mujoco]').")
+
+
+class LeggedPayloadConfig(Strict):
+    """The unknown world: a point mass on the base (at its origin) the plant carries from the
+    start of a cycle on, and the controller's model does not know."""
+
+    fraction: PositiveFloat = Field(le=10.0, description="The payload's mass as a fraction of "
+                                    "the robot's mass [-] (0.2: 20 %).")
+    cycle: int = Field(ge=1, le=MAX_CYCLES, description="The cycle at whose start it is put on "
+                       "(cycles numbered from 0, so at least one cycle runs without it).")
+
+
+class LeggedLearningConfig(Strict):
+    """FEL of the trot's feedforward: a Fourier series in the gait's phase per generalized
+    coordinate, moved each cycle towards the feedback that moves the robot
+    (feltool/walking/legged/learn.py)."""
+
+    enabled: bool = Field(True, description="false: the same rollout without learning (the "
+                          "feedback the trot needs).")
+    rate: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = Field(0.5, description=
+        "Learning rate eta [-] in (0, 1]: the share of the cycle's feedback series moved into "
+        "the feedforward per cycle.")
+    harmonics: int = Field(0, ge=0, le=20, description="Highest harmonic M of the learned "
+        "series [-]; 0: the cycle's mean (higher harmonics lag the base's PDs by more than 90 "
+        "degrees and grew the feedback, feltool/walking/legged/learn.py).")
+
+
+class LeggedExperimentConfig(Strict):
+    """A legged experiment: a robot on a free flyer trotting, FEL on its feedforward, an
+    unknown payload (selected by ``walking: {base: free_flyer}``)."""
+
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$",
+                      description="Experiment name; used for the run directory.")
+    description: str = Field("", description="Free text shown in summaries.")
+    robot: str = Field(min_length=1, description="solo12 (Solo-12 from example-robot-data; also "
+        "example-robot-data:solo12) or a URDF file's path (relative to the config file), put on "
+        "a free flyer; a URDF needs walking.feet.")
+    effort: PositiveFloat | None = Field(None, le=1.0e4, description="Every motor's torque limit "
+        "in [N m], replacing the URDF's (Solo-12's URDF says 1000; its actuator's peak is "
+        "2.7); default the URDF's.")
+    walking: LeggedWalkingConfig = Field(description="Base, feet and gait.")
+    sim: LeggedSimConfig = Field(default_factory=LeggedSimConfig, description="Simulation.")
+    plant: LeggedPlantConfig = Field(default_factory=LeggedPlantConfig,
+                                     description="What simulates the robot.")
+    payload: LeggedPayloadConfig | None = Field(None, description="The unknown world; default "
+                                                "none.")
+    learning: LeggedLearningConfig = Field(default_factory=LeggedLearningConfig,
+                                           description="Feedback error learning.")
+    seeds: Annotated[int, Field(ge=1, le=MAX_SEEDS)] | Annotated[
+        list[Annotated[int, Field(ge=0, le=MAX_SEED)]], Field(min_length=1, max_length=MAX_SEEDS)
+    ] = Field(10, description=f"Number of seeds (0..n-1, at most {MAX_SEEDS}) or a list of "
+              "distinct seeds; a seed draws the start velocity.")
+    success: SuccessConfig = Field(default_factory=SuccessConfig, description="When a seed "
+        "counts as learned (the exit code), beyond trotting physically through every cycle: "
+        "fb_ratio_max bounds the last cycle's summed feedback over the first cycle's "
+        "(ratio_from: first) or over the payload's cycle's (ratio_from: change); converged: "
+        "below 5 % of the first cycle's for good.")
+
+    @field_validator("robot")
+    @classmethod
+    def _robot(cls, robot: str) -> str:
+        if robot not in NAMED_ROBOTS and not robot.endswith(".urdf"):
+            raise ValueError(f"'{robot}' is neither {NAMED_ROBOTS[0]} nor a URDF file's path "
+                             "(ending in .urdf)")
+        return robot
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, s):
+        if isinstance(s, list):
+            repeated = sorted(x for x, n in Counter(s).items() if n > 1)
+            if repeated:
+                raise ValueError(f"seed {', '.join(map(str, repeated))} given more than once")
+        return s
+
+    def problems(self) -> list[tuple[str, str]]:
+        """Checks across fields, as ``(yaml_path, message)`` pairs."""
+        out = []
+        feet = self.walking.feet
+        if feet is not None:
+            out += [(f"walking.feet.{f}", f"unknown foot name '{f}': the trot's feet are "
+                                          f"{', '.join(TROT_FEET)} (front/hind, left/right)")
+                    for f in feet if f not in TROT_FEET]
+            missing = [f for f in TROT_FEET if f not in feet]
+            if missing:
+                out.append(("walking.feet", f"the trot needs all four feet "
+                                            f"{', '.join(TROT_FEET)}; missing {', '.join(missing)}"))
+        if self.robot not in NAMED_ROBOTS and feet is None:
+            out.append(("walking.feet", "required for a URDF robot: FL, FR, HL, HR, each "
+                                        "{frame: NAME} or {link: NAME, offset: [x, y, z]}"))
+        if self.success.ratio_from == "change" and self.payload is None:
+            out.append(("success.ratio_from", "change needs a payload (payload: {fraction: "
+                                              "..., cycle: ...})"))
+        if self.plant.simulator == "mujoco" and "impact_window_s" in self.sim.model_fields_set:
+            out.append(("sim.impact_window_s", "the rigid plant's impact window; MuJoCo's soft "
+                                               "contacts have none (plant.simulator: mujoco)"))
+        return out
+
+    @property
+    def seed_list(self) -> list[int]:
+        return list(range(self.seeds)) if isinstance(self.seeds, int) else list(self.seeds)
+
+    def urdf_path(self, base_dir: Path | None) -> Path | None:
+        """The URDF file (relative paths from ``base_dir``, the config's directory), or None
+        for a named robot."""
+        if self.robot in NAMED_ROBOTS:
+            return None
+        path = Path(self.robot).expanduser()
+        return path if path.is_absolute() or base_dir is None else Path(base_dir) / path
+
+
+def is_legged(raw: Any) -> bool:
+    """Whether a raw config mapping is a legged experiment (``walking.base: free_flyer``)."""
+    walking = raw.get("walking") if isinstance(raw, dict) else None
+    return isinstance(walking, dict) and walking.get("base") == "free_flyer"
+
+
+def parse_legged_config(data: dict[str, Any], source: str | None = None
+                        ) -> LeggedExperimentConfig:
+    """Validate a legged config mapping; raises :class:`ConfigError` naming every bad field."""
+    try:
+        cfg = LeggedExperimentConfig.model_validate(data)
+    except ValidationError as exc:
+        problems = [(p, m.replace("see docs/configuration.md", "see docs/configuration.md, "
+                                  "LeggedExperimentConfig") if m.startswith("unknown field")
+                     else m) for p, m in _pydantic_problems(exc)]
+        raise ConfigError(problems, source) from None
+    problems = cfg.problems()
+    if problems:
+        raise ConfigError(problems, source)
+    return cfg
+
+
+def legged_config_yaml(cfg: LeggedExperimentConfig, base_dir: Path | None) -> str:
+    """The resolved config (defaults filled in) as YAML, a URDF path made absolute."""
+    from feltool.files import dump_yaml
+
+    data = cfg.model_dump(mode="json")
+    path = cfg.urdf_path(base_dir)
+    if path is not None:
+        data["robot"] = str(path.resolve())
+    return dump_yaml(data, sort_keys=False)

@@ -1,0 +1,369 @@
+"""A legged experiment's run (``walking.base: free_flyer``): every seed's learning trot
+(:func:`feltool.walking.legged.learn.learn_trot`) into a run directory, its summary and verdict.
+
+::
+
+    config.yaml          the resolved config (defaults filled in, a URDF path absolute)
+    run.json             inputs and state (feltool.runs.runstate); not resumable yet
+    metrics.csv          one row per (seed, cycle): fb_total (the summed feedback [N m]),
+                         fb_share_<motor> (each motor's RMS feedback share [N m]), t_start_s,
+                         t_end_s, payload (1 once the payload is on)
+    summary.json         per seed: walked, not_walking, cycles, fb before / at the change,
+                         first, last, ratios, speed, contact statistics; the run's verdict
+    params/seed-N.npz    the learned Fourier coefficients C (2M+1, nv), the coordinates'
+                         names, feedback per cycle, shares, cycle times (allow_pickle=False)
+    traces/seed-N.npz    the rollout's configurations q (n, nq) at TRACE_HZ, uniform times t
+                         [s] (the nearest control step's), for the viewer (rollout.html)
+    figures/legged_feedback.png   summed feedback per cycle, every seed
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from feltool._version import __version__
+from feltool.config.legged import LeggedExperimentConfig, legged_config_yaml
+from feltool.errors import ConfigError, InputError, RobotError
+from feltool.files import WriteError, make_dirs
+from feltool.runs.rundir import atomic_write, save_npz, write_by, write_json, write_metrics
+from feltool.runs.runstate import (
+    NOTHING_WRITTEN,
+    RunLock,
+    describe_contents,
+    has_contents,
+    set_state,
+)
+
+#: The free flyer's six velocity coordinates (base frame), before the motors
+BASE_COORDINATES = ("base_vx", "base_vy", "base_vz", "base_wx", "base_wy", "base_wz")
+
+#: The rate the rollout's configurations are kept at for the viewer [Hz]
+TRACE_HZ = 50.0
+
+
+def trace(t: np.ndarray, q: np.ndarray, rate_hz: float = TRACE_HZ) -> dict[str, np.ndarray]:
+    """The configurations ``q`` ``(n, nq)`` at uniform times ``1 / rate_hz`` apart [s], each
+    the last control step's at or before that time (the log's steps are uneven at events)."""
+    t, q = np.asarray(t, float), np.asarray(q, float)
+    if len(t) == 0:
+        return {"t": np.zeros(0), "q": np.zeros((0, q.shape[1] if q.ndim == 2 else 0))}
+    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
+    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
+    return {"t": grid, "q": q[idx]}
+
+
+def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
+                      source: str | None = None):
+    """The config's robot as a :class:`~feltool.walking.legged.model.LeggedModel` (``base_dir``:
+    the config's directory, for a relative URDF path). Raises :class:`ConfigError` (of the
+    config file ``source``) naming ``robot`` (a missing or unreadable URDF) or
+    ``walking.feet.<foot>`` (no such frame or link)."""
+    from feltool.walking.legged.model import SOLO12_FEET, legged_model, load_legged_urdf
+
+    feet = {name: foot.model_dump(exclude_none=True) for name, foot in
+            (cfg.walking.feet or {}).items()}
+    for spec in feet.values():
+        if "link" in spec:
+            spec["offset"] = list(spec["offset"])
+        else:
+            spec.pop("offset", None)
+    path = cfg.urdf_path(base_dir)
+    try:
+        if path is None:
+            import example_robot_data as erd
+
+            robot = erd.load("solo12")
+            return legged_model(robot.model, feet or SOLO12_FEET, q0=np.array(robot.q0),
+                                effort=cfg.effort, name="solo12")
+        if not path.is_file():
+            raise ConfigError([("robot", f"{path}: no such URDF file")])
+        return load_legged_urdf(path, feet, effort=cfg.effort)
+    except RobotError as exc:
+        raise ConfigError([("robot", str(exc))], source) from None
+    except ConfigError as exc:
+        raise ConfigError(exc.problems, source) from None
+
+
+def describe(cfg: LeggedExperimentConfig, legged) -> str:
+    """One line: the robot, gait, plant, payload and seeds (``feltool check``)."""
+    g, p = cfg.walking.gait, cfg.payload
+    load = "no payload" if p is None else \
+        f"payload {p.fraction:.0%} of {legged.mass:.3g} kg from cycle {p.cycle}"
+    return (f"robot {legged.name} ({legged.mass:.3g} kg, {legged.nv - 6} motors, limit "
+            f"{float(np.max(legged.effort)):g} N m, feet {', '.join(legged.feet)}), trot "
+            f"{g.speed:g} m/s, period {g.period:g} s, plant {cfg.plant.simulator}, {load}, "
+            f"learning {'on' if cfg.learning.enabled else 'off'}, {len(cfg.seed_list)} seeds x "
+            f"{cfg.sim.cycles} cycles")
+
+
+def acquire_reference(cfg: LeggedExperimentConfig, legged):
+    """The reference's correction acquired on the known model (``walking.acquire`` rounds,
+    :func:`~feltool.walking.legged.orbit.acquire_orbit`), or None for 0 rounds."""
+    from feltool.walking.legged.orbit import acquire_orbit
+    from feltool.walking.legged.trot import TrotGait
+
+    if cfg.walking.acquire == 0:
+        return None
+    return acquire_orbit(legged, TrotGait(**cfg.walking.gait.model_dump()),
+                         rounds=cfg.walking.acquire, impact_window=cfg.sim.impact_window_s,
+                         rate_hz=cfg.sim.rate_hz)
+
+
+def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int,
+             correction=None) -> dict[str, Any]:
+    """One seed's learning trot on the reference ``correction`` (:func:`acquire_reference`);
+    its metrics rows, params and summary entry."""
+    from feltool.walking.legged.learn import PhaseFeedforward, learn_trot
+    from feltool.walking.legged.trot import TrotGait
+
+    L, p = cfg.learning, cfg.payload
+    t0 = time.perf_counter()
+    run = learn_trot(legged, cycles=cycles, payload=p.fraction if p else 1.0,
+                     change=p.cycle if p else cycles + 10, seed=seed, learn=L.enabled,
+                     plant=cfg.plant.simulator, gait=TrotGait(**cfg.walking.gait.model_dump()),
+                     rate_hz=cfg.sim.rate_hz, impact_window=cfg.sim.impact_window_s,
+                     start_speed=cfg.sim.start_velocity_scale,
+                     feedforward=PhaseFeedforward(L.harmonics, legged.nv, L.rate),
+                     correction=correction, acquire=0)
+    wall = time.perf_counter() - t0
+    ctl, fb = run.controller, np.asarray(run.feedback, float)
+    n = len(fb)
+    shares = np.array(ctl.share_rms, float).reshape(n, legged.nv - 6)
+    times = np.array(ctl.cycle_times, float).reshape(n, 2)
+    change = p.cycle if p else None
+    rows = [{"seed": seed, "cycle": c, "fb_total": float(fb[c]),
+             **{f"fb_share_{m}": float(shares[c, i]) for i, m in enumerate(legged.motors)},
+             "t_start_s": float(times[c, 0]), "t_end_s": float(times[c, 1]),
+             "payload": int(change is not None and c >= change)} for c in range(n)]
+    walked = run.kind is None and n >= cycles
+    reason = run.log.not_walking or (None if walked else
+                                     f"stopped after {n} of {cycles} cycles")
+    at = lambda i: float(fb[i]) if 0 <= i < n else None  # noqa: E731
+    entry = {"seed": seed, "cycles": n, "walked": walked, "not_walking": reason,
+             "kind": run.kind, "fb_first": at(0), "fb_last": at(n - 1),
+             "fb_ratio": at(n - 1) / fb[0] if n and fb[0] > 0 else None,
+             "speed_m_per_s": run.speed, "wall_s": round(wall, 3),
+             "stats": {k: (float(v) if isinstance(v, (float, np.floating)) else v)
+                       for k, v in vars(run.log.stats).items()}}
+    if change is not None:
+        entry.update({"change_cycle": change, "fb_before_change": at(change - 1),
+                      "fb_change": at(change),
+                      "fb_ratio_change": at(n - 1) / fb[change] if n > change and fb[change] > 0
+                      else None})
+    below = fb < 0.05 * fb[0] if n else np.zeros(0, bool)
+    stays = [c for c in range(n) if below[c:].all()]
+    entry["converged_cycle"] = stays[0] if stays else None
+    params = {"C": ctl.learned.C, "coordinates": np.array(BASE_COORDINATES + tuple(legged.motors)),
+              "feedback": fb, "share_rms": shares, "cycle_times": times,
+              "harmonics": np.array(L.harmonics), "rate": np.array(L.rate)}
+    return {"rows": rows, "params": params, "entry": entry,
+            "trace": {**trace(run.log.t, run.log.q), "cycle_times": times}}
+
+
+def failure(cfg: LeggedExperimentConfig, entry: dict[str, Any], cycles: int) -> str | None:
+    """Why a seed did not learn as the config asks (None: it did)."""
+    if not entry["walked"]:
+        return f"not walking: {entry['not_walking']}"
+    crit = cfg.success
+    if crit.fb_ratio_max is not None:
+        if crit.ratio_from == "change" and entry.get("fb_ratio_change") is None:
+            return (f"the seed ended after {entry['cycles']} cycles, before the payload's cycle "
+                    f"{cfg.payload.cycle} that success.ratio_from: change measures from")
+        key = "fb_ratio_change" if crit.ratio_from == "change" else "fb_ratio"
+        ratio = entry.get(key)
+        if ratio is None or ratio > crit.fb_ratio_max:
+            what = "fb_last / fb_change" if key == "fb_ratio_change" else "fb_last / fb_first"
+            shown = "none" if ratio is None else f"{ratio:.4g}"
+            return f"{what} = {shown} > success.fb_ratio_max = {crit.fb_ratio_max:g}"
+    if crit.converged and entry["converged_cycle"] is None:
+        return "never stayed below 5 % of the first cycle's feedback (success.converged: true)"
+    return None
+
+
+def refuse_taken(out_dir: Path) -> None:
+    """Raise :class:`InputError` unless ``out_dir`` is new or empty (a run directory belongs
+    to one command; a legged run cannot be resumed yet)."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"--out {out_dir}: exists and is not a directory")
+    if has_contents(out_dir):
+        raise InputError(f"--out {out_dir}: already holds {describe_contents(out_dir)}; a run "
+                         "directory belongs to one command: choose a new --out (a legged run "
+                         "cannot be resumed yet)")
+
+
+def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_dir: Path,
+               seeds: list[int] | None = None, cycles: int | None = None,
+               progress: TextIO | None = None, legged=None) -> dict[str, Any]:
+    """Run every seed one after another into ``out_dir`` (new or empty: a run directory
+    belongs to one command), write it, return the summary (``legged``: the config's robot,
+    already loaded by :func:`load_legged_robot`)."""
+    seeds = list(seeds if seeds is not None else cfg.seed_list)
+    cycles = cycles or cfg.sim.cycles
+    base_dir = source.parent if source is not None else None
+    if legged is None:  # bad input fails before anything is written
+        legged = load_legged_robot(cfg, base_dir, str(source) if source else None)
+    out_dir = Path(out_dir)
+    refuse_taken(out_dir)
+    try:
+        lock = RunLock(out_dir).acquire()
+    except WriteError as exc:
+        raise exc.keeping(NOTHING_WRITTEN, 2) from None
+    try:
+        atomic_write(out_dir / "config.yaml", legged_config_yaml(cfg, base_dir))
+        write_json(out_dir / "run.json", {
+            "source": str(source.resolve()) if source else None, "raw": raw, "seeds": seeds,
+            "cycles": cycles, "kind": "legged"})
+        set_state(out_dir, "running", cycles=cycles)
+    except WriteError as exc:
+        lock.release()
+        raise exc.keeping(NOTHING_WRITTEN, 2) from None
+    try:
+        results = []
+        t0 = time.perf_counter()
+        acquired = acquire_reference(cfg, legged)
+        if acquired is not None:
+            write_json(out_dir / "reference.json", {
+                "rounds": cfg.walking.acquire, "feedback_n_m": acquired.feedback,
+                "wall_s": round(time.perf_counter() - t0, 3)})
+            if progress is not None:
+                print(f"feltool: reference acquired on the known model in {cfg.walking.acquire} "
+                      f"rounds, its feedback " + " -> ".join(f"{f:.4f}" for f in
+                                                             acquired.feedback) + " N m",
+                      file=progress, flush=True)
+        for i, seed in enumerate(seeds):
+            r = run_seed(cfg, legged, seed, cycles,
+                         None if acquired is None else acquired.correction)
+            results.append(r)
+            save_npz(out_dir / "params" / f"seed-{seed}.npz", r["params"])
+            save_npz(out_dir / "traces" / f"seed-{seed}.npz", r.pop("trace"))
+            if progress is not None:
+                e = r["entry"]
+                print(f"feltool: seed {seed} ({i + 1}/{len(seeds)}): {e['cycles']} cycles, "
+                      f"{'walked' if e['walked'] else 'NOT WALKING'}, {e['wall_s']:.3g} s",
+                      file=progress, flush=True)
+        summary = write_summary(cfg, legged, out_dir, results, cycles)
+        set_state(out_dir, "complete", outcome={"n_failed": summary["aggregate"]["n_failed"]})
+    except KeyboardInterrupt:
+        set_state(out_dir, "interrupted")
+        raise
+    except BaseException:
+        set_state(out_dir, "failed")
+        raise
+    finally:
+        lock.release()
+    draw_feedback(out_dir, results, cfg.payload.cycle if cfg.payload else None)
+    return summary
+
+
+def write_summary(cfg: LeggedExperimentConfig, legged, out_dir: Path, results: list[dict],
+                  cycles: int) -> dict[str, Any]:
+    """metrics.csv and summary.json from the seeds' results."""
+    write_metrics(out_dir / "metrics.csv", [row for r in results for row in r["rows"]])
+    entries = []
+    for r in results:
+        e = dict(r["entry"])
+        e["failed_reason"] = failure(cfg, e, cycles)
+        e["learned"] = e["failed_reason"] is None
+        entries.append(e)
+    ratios = [e["fb_ratio_change"] for e in entries if e.get("fb_ratio_change") is not None]
+    n_failed = sum(not e["learned"] for e in entries)
+    summary = {
+        "config": cfg.name, "kind": "legged", "feltool_version": __version__,
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "robot": legged.name, "mass_kg": legged.mass, "motors": legged.motors,
+        "feet": list(legged.feet), "plant": cfg.plant.simulator, "cycles": cycles,
+        "change_cycle": cfg.payload.cycle if cfg.payload else None,
+        "success": cfg.success.model_dump(), "seeds": entries,
+        "aggregate": {"n_seeds": len(entries), "n_walked": sum(e["walked"] for e in entries),
+                      "n_failed": n_failed, "n_diverged": 0,
+                      "fb_ratio_change_min": min(ratios) if ratios else None,
+                      "fb_ratio_change_max": max(ratios) if ratios else None},
+        "verdict": "learned" if n_failed == 0 else "failed"}
+    write_json(out_dir / "summary.json", summary)
+    return summary
+
+
+def draw_feedback(out_dir: Path, results: list[dict], change: int | None) -> Path:
+    """``figures/legged_feedback.png``: the summed feedback per cycle of every seed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    make_dirs(out_dir / "figures")
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for r in results:
+        fb = r["params"]["feedback"]
+        ax.plot(np.arange(len(fb)), fb, lw=1.2, label=f"seed {r['entry']['seed']}")
+    if change is not None:
+        ax.axvline(change, color="k", ls=":", lw=1, label=f"payload on (cycle {change})")
+    ax.set_yscale("log")
+    ax.set_xlabel("cycle")
+    ax.set_ylabel("summed feedback per cycle [N m]")
+    ax.set_title("Legged trot: feedback over the cycles")
+    ax.grid(True, which="both", alpha=0.3)
+    if len(results) <= 10:
+        ax.legend(fontsize=7)
+    fig.subplots_adjust(left=0.14, right=0.97, bottom=0.13, top=0.91)
+    path = out_dir / "figures" / "legged_feedback.png"
+    write_by(path, lambda fh: fig.savefig(fh, format="png", dpi=120))
+    plt.close(fig)
+    return path
+
+
+def print_summary(summary: dict[str, Any], out_dir: Path, out: TextIO | None = None) -> None:
+    """The run's table (to ``out``, default stdout): per seed, whether it trotted, its
+    feedback around the change, the ratio; the verdict."""
+    out = sys.stdout if out is None else out
+    fmt = lambda x, f: "-" if x is None else format(x, f)  # noqa: E731
+    agg = summary["aggregate"]
+    n = agg["n_seeds"]
+    print(f"{summary['config']}: {n} seed{'' if n == 1 else 's'} x {summary['cycles']} cycles, "
+          f"{summary['robot']} on {summary['plant']}, payload from cycle "
+          f"{fmt(summary['change_cycle'], 'd')}; summed feedback [N m]", file=out)
+    print(f"  {'seed':>4} {'cycles':>6} {'outcome':<12} {'fb_first':>9} {'fb_before':>9} "
+          f"{'fb_change':>9} {'fb_last':>9} {'last/chg':>8} {'speed':>6}", file=out)
+    for s in summary["seeds"]:
+        print(f"  {s['seed']:>4} {s['cycles']:>6} "
+              f"{'walked' if s['walked'] else 'NOT WALKING':<12} {fmt(s['fb_first'], '.4g'):>9} "
+              f"{fmt(s.get('fb_before_change'), '.4g'):>9} {fmt(s.get('fb_change'), '.4g'):>9} "
+              f"{fmt(s['fb_last'], '.4g'):>9} {fmt(s.get('fb_ratio_change'), '.3f'):>8} "
+              f"{fmt(s['speed_m_per_s'], '.3f'):>6}", file=out)
+        if s["failed_reason"]:
+            print(f"       seed {s['seed']} did not learn as the config asks: "
+                  f"{s['failed_reason']}", file=out)
+    crit = summary["success"]
+    bound = "" if crit["fb_ratio_max"] is None else \
+        f" (success: last / {crit['ratio_from']} <= {crit['fb_ratio_max']:g})"
+    print(f"  walked every cycle: {agg['n_walked']}/{agg['n_seeds']}; learned as the config "
+          f"asks{bound}: {agg['n_seeds'] - agg['n_failed']}/{agg['n_seeds']}; run directory: "
+          f"{out_dir}", file=out)
+
+
+def exit_code(summary: dict[str, Any]) -> int:
+    """0 every seed trotted through every cycle and met success:, else 1."""
+    return 1 if summary["aggregate"]["n_failed"] else 0
+
+
+def check_not_resumable(out_dir: Path) -> None:
+    """Raise :class:`InputError` when ``out_dir`` holds a legged run (no resume yet)."""
+    import json
+
+    try:
+        meta = json.loads((Path(out_dir) / "run.json").read_text())
+    except (OSError, ValueError):
+        return
+    if isinstance(meta, dict) and meta.get("kind") == "legged":
+        raise InputError(f"--resume {out_dir}: a legged run (walking.base: free_flyer) cannot be "
+                         "resumed yet; start it again with a new --out")
+
+
+__all__ = ["check_not_resumable", "describe", "exit_code", "load_legged_robot", "print_summary",
+           "refuse_taken", "run_legged", "run_seed"]

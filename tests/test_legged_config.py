@@ -1,0 +1,200 @@
+"""The legged trot from a config (issue 32: ``walking.base: free_flyer``,
+``configs/legged/solo12_trot.yaml``): ``feltool check`` and ``feltool run`` through the real
+command, the run directory it writes, and every bad input refused with exit 2 naming its field.
+
+The run is the shipped config shortened to 2 seeds x 8 cycles with the payload at cycle 2
+(about 5 s of wall time per seed)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from feltool.cli.main import main
+
+from .conftest import CONFIGS, feltool
+
+SHIPPED = CONFIGS / "legged" / "solo12_trot.yaml"
+
+
+def _config(tmp_path: Path, name: str = "trot.yaml", **changes) -> Path:
+    """The shipped config with ``changes`` (dotted keys; None removes a key), written to
+    ``tmp_path``."""
+    raw = yaml.safe_load(SHIPPED.read_text())
+    for key, value in changes.items():
+        node, parts = raw, key.split("__")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        if value is None:
+            node.pop(parts[-1], None)
+        else:
+            node[parts[-1]] = value
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.mark.parametrize("name", ["solo12_trot.yaml", "solo12_trot_mujoco.yaml"])
+def test_the_shipped_configs_check(name, capsys):
+    assert main(["check", str(CONFIGS / "legged" / name)]) == 0
+    out = capsys.readouterr().out
+    assert "ok - robot solo12" in out and "10 seeds x 150 cycles" in out
+    cfg = yaml.safe_load((CONFIGS / "legged" / name).read_text())
+    assert cfg["payload"] == {"fraction": 0.2, "cycle": 3} and cfg["seeds"] == 10
+    assert cfg["success"] == {"ratio_from": "change", "fb_ratio_max": 0.15}
+    assert cfg["walking"]["acquire"] == 4
+
+
+def test_a_short_run_writes_its_directory_and_the_feedback_falls_after_the_change(tmp_path):
+    """2 seeds x 8 cycles, payload at cycle 2, the reference acquired in 2 rounds, through the
+    installed command: exit 0, every file, the summary's numbers, and the learned feedforward
+    bringing the feedback to the config's 0.15 of the change's cycle."""
+    out = tmp_path / "run"
+    proc = feltool("run", str(_config(tmp_path, payload__cycle=2, walking__acquire=2)),
+                   "--seeds", "0-1", "--cycles", "8", "--out", str(out), "--no-progress",
+                   "--html")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "walked every cycle: 2/2" in proc.stdout
+    reference = json.loads((out / "reference.json").read_text())
+    assert reference["rounds"] == 2 and len(reference["feedback_n_m"]) == 3
+    assert reference["feedback_n_m"][2] < 0.5 * reference["feedback_n_m"][0]
+    for name in ("config.yaml", "run.json", "metrics.csv", "summary.json", "params/seed-0.npz",
+                 "params/seed-1.npz", "traces/seed-0.npz", "figures/legged_feedback.png",
+                 "rollout.html"):
+        assert (out / name).is_file(), name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["verdict"] == "learned" and summary["change_cycle"] == 2
+    assert [s["seed"] for s in summary["seeds"]] == [0, 1]
+    for s in summary["seeds"]:
+        assert s["walked"] and s["not_walking"] is None and s["cycles"] == 8
+        before, change, last = s["fb_before_change"], s["fb_change"], s["fb_last"]
+        assert 0 < before < change  # the payload adds feedback ...
+        assert last < 0.6 * change  # ... that FEL takes back
+        assert s["fb_ratio_change"] == pytest.approx(last / change)
+        assert s["fb_ratio_change"] <= 0.15 and s["learned"]
+        assert s["stats"]["torque_hits"] == 0 and s["stats"]["max_torque"] <= 2.7
+    with open(out / "metrics.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 16 and {"fb_total", "fb_share_FL_HAA", "payload"} <= set(rows[0])
+    fb0 = [float(r["fb_total"]) for r in rows if r["seed"] == "0"]
+    assert fb0[2] == pytest.approx(summary["seeds"][0]["fb_change"])
+    assert fb0[3] > fb0[4] > fb0[5] > fb0[6]  # falling after the change
+    shares = np.array([[float(v) for k, v in r.items() if k.startswith("fb_share_")]
+                       for r in rows])
+    assert shares.shape == (16, 12)
+    assert np.allclose(np.sqrt((shares ** 2).sum(axis=1)), [float(r["fb_total"]) for r in rows])
+    with np.load(out / "params" / "seed-0.npz", allow_pickle=False) as p:
+        assert p["C"].shape == (1, 18) and np.any(p["C"] != 0)
+        assert list(p["coordinates"][6:9]) == ["FL_HAA", "FL_HFE", "FL_KFE"]
+    assert yaml.safe_load((out / "config.yaml").read_text())["payload"]["cycle"] == 2
+    _check_rollout_html(out)
+
+
+def _check_rollout_html(out: Path) -> None:
+    """rollout.html draws Solo-12's meshes (every visual of example-robot-data's model) and
+    moves them along seed 0's recorded trot: the base goes forward at the trot's speed."""
+    import example_robot_data as erd
+
+    from .test_viewer import _commands
+
+    page = (out / "rollout.html").read_text(encoding="utf-8")
+    assert "payload on (cycle 2)" in page and "last cycles" in page
+    cmds = _commands(page)
+    visuals = erd.load("solo12").visual_model.geometryObjects
+    objects = [c["path"] for c in cmds if c["type"] == "set_object"]
+    assert len(objects) == len(visuals) > 10
+    (anim,) = [c for c in cmds if c["type"] == "set_animation"]
+    base = next(a for a in anim["animations"] if "base_link" in a["path"])
+    track = {t["name"]: t for t in base["clip"]["tracks"]}[".position"]
+    times, x = np.array(track["times"]), np.array(track["values"]).reshape(-1, 3)[:, 0]
+    assert np.all(np.diff(times) > 0)
+    with np.load(out / "traces" / "seed-0.npz", allow_pickle=False) as tr:
+        q, t = tr["q"], tr["t"]
+    assert np.allclose(np.diff(t), 0.02) and q.shape[1] == 19
+    last = times > times[len(times) // 2 + 1]  # the second clip, "last cycles"
+    speed = (x[last][-2] - x[last][0]) / (times[last][-2] - times[last][0])
+    assert speed == pytest.approx(0.3, abs=0.03)
+
+
+def test_a_missed_success_bound_exits_1_and_keeps_the_results(tmp_path, capsys):
+    out = tmp_path / "run"
+    path = _config(tmp_path, payload__cycle=1, success__fb_ratio_max=0.01)
+    assert main(["run", str(path), "--seeds", "0", "--cycles", "3", "--out", str(out),
+                 "--no-progress"]) == 1
+    printed = capsys.readouterr().out
+    assert "fb_last / fb_change" in printed and "> success.fb_ratio_max = 0.01" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["verdict"] == "failed" and summary["seeds"][0]["walked"]
+    # a run directory belongs to one command: not reused, not resumed
+    assert main(["run", str(path), "--out", str(out)]) == 2
+    assert main(["run", "--resume", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "already holds" in err and "cannot be resumed" in err
+
+
+def _solo_urdf() -> str:
+    import example_robot_data as erd
+
+    return str(erd.load("solo12").urdf)
+
+
+BAD = [
+    ({"walking__gait__sped": 0.3}, "walking.gait.sped: unknown field"),
+    ({"walking__gait__speed": -0.3}, "walking.gait.speed:"),
+    ({"walking__gait__period": 0}, "walking.gait.period:"),
+    ({"walking__feet__XL": {"frame": "FL_FOOT"}}, "walking.feet.XL: unknown foot name 'XL'"),
+    ({"walking__feet__HR": None}, "walking.feet: the trot needs all four feet"),
+    ({"walking__feet__FL": {"frame": "NOPE"}}, "walking.feet.FL: no frame 'NOPE'"),
+    ({"walking__feet__FL": {"frame": "FL_FOOT", "link": "FL_LOWER_LEG"}}, "walking.feet.FL:"),
+    ({"robot": "missing.urdf"}, "robot: "),
+    ({"robot": "anymal"}, "robot: 'anymal' is neither solo12 nor a URDF"),
+    ({"robot": "{urdf}", "walking__feet": None}, "walking.feet: required for a URDF robot"),
+    ({"effort": -1}, "effort:"),
+    ({"payload__fraction": 0}, "payload.fraction:"),
+    ({"payload__cycle": 0}, "payload.cycle:"),
+    ({"payload": None}, "success.ratio_from: change needs a payload"),
+    ({"plant__simulator": "bullet"}, "plant.simulator:"),
+    ({"sim__cycles": True}, "sim.cycles: a boolean"),
+    ({"sim__rate_hz": 10}, "sim.rate_hz:"),
+    ({"plant__simulator": "mujoco", "sim__impact_window_s": 0.001}, "sim.impact_window_s:"),
+    ({"learning__rate": 2}, "learning.rate:"),
+    ({"learning__harmonics": -1}, "learning.harmonics:"),
+    ({"seeds": [1, 1]}, "seeds: seed 1 given more than once"),
+    ({"period_s": 0.3}, "period_s: unknown field"),
+]
+
+
+@pytest.mark.parametrize("changes, message", BAD, ids=[m.split(":")[0] for _, m in BAD])
+def test_a_bad_field_exits_2_naming_it(tmp_path, capsys, changes, message):
+    changes = {k: (_solo_urdf() if v == "{urdf}" else v) for k, v in changes.items()}
+    path = _config(tmp_path, **changes)
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+    assert "Traceback" not in err and err.count("\n") == 1, err
+    assert main(["run", str(path), "--out", str(tmp_path / "never")]) == 2
+    assert not (tmp_path / "never").exists()
+    capsys.readouterr()
+
+
+def test_a_urdf_robot_with_link_and_offset_feet_checks(tmp_path, capsys):
+    """Any URDF on a free flyer: Solo-12's own file with its feet as the lower legs' points."""
+    feet = {f: {"link": f"{f}_LOWER_LEG", "offset": [0.0, 0.0, -0.16]}
+            for f in ("FL", "FR", "HL", "HR")}
+    path = _config(tmp_path, robot=_solo_urdf(), walking__feet=feet)
+    assert main(["check", str(path)]) == 0
+    assert "feet FL, FR, HL, HR" in capsys.readouterr().out
+
+
+def test_options_the_legged_run_does_not_take_exit_2(tmp_path, capsys):
+    for extra in (["--realtime"], ["--view"], ["--resume"]):
+        assert main(["run", str(SHIPPED), "--out", str(tmp_path / "x"), "--cycles", "1",
+                     "--seeds", "0", *extra]) == 2
+        assert "legged" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
