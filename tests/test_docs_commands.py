@@ -52,6 +52,18 @@ EXEMPT = {
     "python benchmarks/walk_mujoco.py": "a measured benchmark: 10 seeds x 150 cycles of both "
                                         "walkers on MuJoCo, ~40 min (tests/test_mujoco.py runs "
                                         "its short learning check)",
+    "python benchmarks/legged_trot.py --seeds 10": "a measured benchmark: 10 seeds x 20 s of the "
+                                                   "trot, ~10 min (the page's short run and "
+                                                   "tests/test_legged_trot.py run it)",
+    "python benchmarks/legged_trot_mujoco.py --seeds 10": "a measured benchmark: 10 seeds x 20 s "
+                                                          "on MuJoCo, ~8 min (its short run "
+                                                          "and tests/test_legged_mujoco.py)",
+    "python benchmarks/legged_poincare.py --cycles 20": "a measured benchmark: 3 x 40 runs of a "
+                                                        "cycle, ~5 min (the page's short run and "
+                                                        "tests/test_legged_learn.py)",
+    "python benchmarks/legged_fel.py --seeds 0-9": "a measured benchmark: 10 seeds x 150 cycles, "
+                                                   "~20 min per plant (the page's short run and "
+                                                   "tests/test_legged_learn.py)",
 }
 #: A command with one of these needs a service that is not here.
 NEEDS_SERVICE = ("--zmq-url", "--scheduler")
