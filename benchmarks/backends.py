@@ -10,7 +10,8 @@ References (this machine's limits, measured first):
     before it is timed): what one control step can cost at all.
 
 Then, per shipped experiment, the learning loop's control steps per second on the Python
-engine and on the compiled engine (``summary.json``'s ``steps_per_s``: the time inside the
+engine and on the compiled engine (the 3D legged trot: the Python loop only, from its start
+including the speed ramp, a few cycles) (``summary.json``'s ``steps_per_s``: the time inside the
 learning cycles only, compilation excluded; best of ``--repeats`` runs), the ratio of the two
 and each as a ratio to the references; the cost per step as the number of basis functions
 grows; the time to a first result with an empty cache; and the whole 20-seed thesis run as
@@ -126,6 +127,22 @@ def learning_speed(config: str, overrides: list[str], engine: str, repeats: int,
     return best
 
 
+def legged_speed(repeats: int, cycles: int = 6) -> float:
+    """Best control steps/s of the 3D legged trot's learning loop (Solo-12, the Python loop
+    with its QP allocation and the contact events; ``cycles`` cycles after the ramp, the
+    reference taken as planned: acquiring it costs the same per step)."""
+    from feltool.walking.legged.learn import learn_trot
+    from feltool.walking.legged.model import load_solo12
+
+    solo = load_solo12(effort=2.7)
+    best = 0.0
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        run = learn_trot(solo, cycles=cycles, acquire=0)
+        best = max(best, len(run.log.t) / (time.perf_counter() - t0))
+    return best
+
+
 def first_result(config: str) -> tuple[float, float]:
     """Seconds to the first cycle's result with an empty cache (build + generate C + compile +
     one cycle), and again with the cache filled."""
@@ -192,6 +209,11 @@ def main() -> None:
         c = (f"{comp:,.0f} | {comp / py:.1f}x | {comp / ref_aba:.2f} | {comp / ref_c:.3f}"
              if comp else f"- ({exp.engine_reason.split(': ', 2)[-1][:40]}) | - | - | -")
         print(f"  | {label} | {py:,.0f} | {c} | {py / ref_aba:.2f} |", flush=True)
+
+    legged = legged_speed(args.repeats)
+    print(f"  | 3D legged trot with FEL (Solo-12, configs/legged/solo12_trot) | {legged:,.0f} | "
+          f"- (no compiled form of the legged loop: its allocation is a QP per step) | - | - | "
+          f"- | {legged / ref_aba:.4f} |", flush=True)
 
     print("\n3. cost per step [us] as the number of basis functions grows (standard arm; "
           "weight rate 0.2 (10/N)^2 so that every N learns)")

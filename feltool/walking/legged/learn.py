@@ -155,7 +155,7 @@ class LearningTrotController(TrotController):
             self.learned = PhaseFeedforward(0, self.legged.nv)
         self.cycle = -1          # the cycle under way (-1: before the first)
         self._t_cycle = 0.0
-        self._last: tuple[float, float, np.ndarray] | None = None  # t, phi, feedback
+        self._last: tuple | None = None  # t, phi, the error, the motor share
         self._phi = 0.0
         self._share_sq, self._share_time = 0.0, 0.0
 
@@ -181,7 +181,7 @@ class LearningTrotController(TrotController):
         self._phi = self._phase(t)
 
     def feedforward(self) -> np.ndarray:
-        """RNEA on the desired motion plus the learned motor torques :math:`B u_{ff}(\\varphi)`."""
+        """RNEA on the desired motion plus the learned :math:`\\tau_{ff}(\\varphi)` ``(nv,)``."""
         return super().feedforward() + self.learned(self._phi)
 
     def feedback(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
