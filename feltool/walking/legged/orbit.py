@@ -38,7 +38,10 @@ from feltool.walking.legged.trot import TrotController, TrotGait
 @dataclass
 class ReferenceCorrection:
     """:math:`\\delta(\\tau)`: the correction of the trot's plan by the time ``tau`` [s] since
-    the cycle began, held from the last recorded control step (its steps are the loop's).
+    the cycle began, interpolated linearly between the recorded control steps (held before the
+    first and after the last): continuous in ``tau``, so that the trot's Poincaré map stays
+    continuous in the state when an event moves (a value held from the last step made it jump
+    from one recorded step to the next: a spectral radius of 2.9 at perturbations of 1e-3).
 
     Attributes:
         tau: ``(n,)`` the recorded times in the cycle [s], increasing.
@@ -55,8 +58,13 @@ class ReferenceCorrection:
     dV: np.ndarray
 
     def __call__(self, tau: float) -> tuple[np.ndarray, ...]:
-        j = int(np.clip(np.searchsorted(self.tau, tau, side="right") - 1, 0, len(self.tau) - 1))
-        return self.dq[j], self.dv[j], self.da[j], self.dP[j], self.dV[j]
+        n = len(self.tau)
+        j = int(np.clip(np.searchsorted(self.tau, tau, side="right") - 1, 0, n - 1))
+        k = min(j + 1, n - 1)
+        span = self.tau[k] - self.tau[j]
+        w = float(np.clip((tau - self.tau[j]) / span, 0.0, 1.0)) if span > 0 else 0.0
+        return tuple((1.0 - w) * x[j] + w * x[k]
+                     for x in (self.dq, self.dv, self.da, self.dP, self.dV))
 
 
 class AcquisitionError(FeltoolError):
