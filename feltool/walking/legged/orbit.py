@@ -17,7 +17,7 @@ run again with the plan corrected by :math:`\delta` (the controller tracks what 
 RNEA now gives the forces of that motion) and record again: a fixed-point iteration
 :math:`\delta_{k+1} = x(\delta_k) - x_{plan}`. A fixed point is a cycle on which the plan plus
 its correction is the motion itself, so the feedback only corrects departures from it. Measured
-on Solo-12 (0.3 m/s): the cycle's summed feedback 0.130, 0.063, 0.047, 0.037, 0.035 N m over
+on Solo-12 (0.3 m/s): the cycle's summed feedback 0.130, 0.060, 0.044, 0.034, 0.027 N m over
 four rounds. Only the known model is used; the unknown world is FEL's (:mod:`.learn`).
 """
 
