@@ -31,20 +31,16 @@ import numpy as np  # noqa: E402
 
 from feltool.walking.legged.model import Payload, load_solo12  # noqa: E402
 from feltool.walking.legged.mujoco_stand import stand_mujoco  # noqa: E402
-from feltool.walking.legged.stand import Push, lowest_swing_apex  # noqa: E402
+from feltool.walking.legged.stand import Push, lowest_swing_apex, random_start  # noqa: E402
 from feltool.walking.legged.trot import TrotController, TrotGait  # noqa: E402
 
 
 def run(solo, seed: int, duration: float, speed: float, push_n: float,
         payload: float = 0.0, **options) -> str:
     rng = np.random.default_rng(seed)
-    v0 = np.zeros(solo.nv)
-    v0[:3] = 0.05 * rng.standard_normal(3)
-    v0[3:6] = 0.2 * rng.standard_normal(3)
-    v0[6:] = 0.2 * rng.standard_normal(solo.nv - 6)
-    angle = rng.uniform(0.0, 2 * np.pi)
-    when = rng.uniform(0.1, 0.9) * duration
-    push = Push(when, 0.1, force=(push_n * np.cos(angle), push_n * np.sin(angle), 0.0))
+    v0 = random_start(solo, rng)
+    push = Push.random(rng, duration, push_n)
+    when, angle = push.start, np.arctan2(push.force[1], push.force[0]) % (2 * np.pi)
     gait = TrotGait(speed=speed)
     q0 = solo.standing()
     ctl = TrotController(solo, q0, gait=gait)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import types
 import typing
+from collections import Counter
 from typing import Annotated, Any, Union
 
 from pydantic import (
@@ -96,3 +97,14 @@ class Strict(BaseModel):
 
 
 Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+
+
+def once_each(seeds: Any) -> Any:
+    """``seeds`` unchanged; a list naming a seed twice is refused (a repeat would be the same
+    run again). For a ``seeds`` field validator."""
+    if isinstance(seeds, list):
+        repeated = sorted(x for x, n in Counter(seeds).items() if n > 1)
+        if repeated:
+            raise ValueError(f"seed {', '.join(map(str, repeated))} given more than once; "
+                             "each seed runs once (a repeat would be the same run again)")
+    return seeds

@@ -4,7 +4,6 @@ criterion and sweeps; the cross-section rules.
 
 from __future__ import annotations
 
-from collections import Counter
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -21,7 +20,7 @@ from feltool.bounds import (
     MAX_STEPS_PER_CYCLE,
     MAX_SWEEP_POINTS,
 )
-from feltool.config.base import Gravity, PositiveFloat, Strict
+from feltool.config.base import Gravity, PositiveFloat, Strict, once_each
 from feltool.config.disturbances import DisturbanceConfig
 from feltool.config.events import EventConfig
 from feltool.config.joints import JointConfig
@@ -133,12 +132,7 @@ class ExperimentConfig(Strict):
     @field_validator("seeds")
     @classmethod
     def _seeds(cls, s):
-        if isinstance(s, list):
-            repeated = sorted(x for x, n in Counter(s).items() if n > 1)
-            if repeated:
-                raise ValueError(f"seed {', '.join(map(str, repeated))} given more than once; "
-                                 "each seed runs once (a repeat would be the same run again)")
-        return s
+        return once_each(s)
 
     @model_validator(mode="before")
     @classmethod

@@ -11,14 +11,13 @@ free_flyer`` selects it (:func:`is_legged`), as issue 32 names it.
 
 from __future__ import annotations
 
-from collections import Counter
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator
 
 from feltool.bounds import MAX_CYCLES, MAX_RATE_HZ, MAX_SEED, MAX_SEEDS
-from feltool.config.base import NonNegFloat, PositiveFloat, Strict
+from feltool.config.base import NonNegFloat, PositiveFloat, Strict, once_each
 from feltool.config.experiment import SuccessConfig
 from feltool.config.files import _pydantic_problems
 from feltool.config.walking import FootConfig
@@ -174,11 +173,7 @@ class LeggedExperimentConfig(Strict):
     @field_validator("seeds")
     @classmethod
     def _seeds(cls, s):
-        if isinstance(s, list):
-            repeated = sorted(x for x, n in Counter(s).items() if n > 1)
-            if repeated:
-                raise ValueError(f"seed {', '.join(map(str, repeated))} given more than once")
-        return s
+        return once_each(s)
 
     def problems(self) -> list[tuple[str, str]]:
         """Checks across fields, as ``(yaml_path, message)`` pairs."""

@@ -60,7 +60,7 @@ from feltool.motion import spectral
 from feltool.walking.legged.model import LeggedModel, Payload, with_payload
 from feltool.walking.legged.mujoco_stand import stand_mujoco
 from feltool.walking.legged.orbit import ReferenceCorrection, acquire_orbit
-from feltool.walking.legged.stand import StandLog, stand
+from feltool.walking.legged.stand import StandLog, random_start, stand
 from feltool.walking.legged.trot import TrotController, TrotGait
 
 
@@ -255,11 +255,7 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                                  learned=feedforward)
     gait = ctl.gait
     load = Payload(payload * legged.mass)
-    rng = np.random.default_rng(seed)
-    v0 = np.zeros(legged.nv)
-    v0[:3] = 0.05 * start_speed * rng.standard_normal(3)
-    v0[3:6] = 0.2 * start_speed * rng.standard_normal(3)
-    v0[6:] = 0.2 * start_speed * rng.standard_normal(legged.nv - 6)
+    v0 = random_start(legged, np.random.default_rng(seed), start_speed)
     duration = gait.start + gait.ramp + 2.0 * (cycles + 2) * gait.period
     common = dict(v0=v0, duration=duration, rate_hz=rate_hz, schedule=gait.schedule,
                   on_touchdown=gait.touchdown, until=lambda t: ctl.cycle >= cycles)

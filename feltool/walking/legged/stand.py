@@ -36,6 +36,26 @@ class Push:
     def active(self, t: float) -> bool:
         return self.start <= t < self.start + self.duration
 
+    @classmethod
+    def random(cls, rng: np.random.Generator, duration: float, force: float) -> Push:
+        """A 0.1 s horizontal push of ``force`` [N] in a random direction at a random time
+        between 10 % and 90 % of ``duration`` [s]."""
+        angle = rng.uniform(0.0, 2 * np.pi)
+        when = rng.uniform(0.1, 0.9) * duration
+        return cls(when, 0.1, force=(force * np.cos(angle), force * np.sin(angle), 0.0))
+
+
+def random_start(legged: LeggedModel, rng: np.random.Generator, scale: float = 1.0
+                 ) -> np.ndarray:
+    """A random start velocity ``(nv,)``: the base's linear ``0.05`` [m/s], angular ``0.2``
+    [rad/s] and the joints' ``0.2`` [rad/s], each times ``scale`` times a standard normal draw
+    (:func:`stand` projects it onto the feet on the ground)."""
+    v0 = np.zeros(legged.nv)
+    v0[:3] = 0.05 * scale * rng.standard_normal(3)
+    v0[3:6] = 0.2 * scale * rng.standard_normal(3)
+    v0[6:] = 0.2 * scale * rng.standard_normal(legged.nv - 6)
+    return v0
+
 
 @dataclass
 class StandLog:
