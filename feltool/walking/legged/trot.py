@@ -257,10 +257,10 @@ class TrotController(StandingController):
                 continue
             self.lift[f], self.t_lift[f] = P[i].copy(), t
             self.stepping[f] = sw is not None and f in PAIRS[sw] and f not in wanted
-            self.target[f] = self._aim(i, v, q, t) if self.stepping[f] else P[i].copy()
+            self.target[f] = self._aim(i, q, v, t) if self.stepping[f] else P[i].copy()
         self._stance = tuple(stance)
 
-    def _aim(self, i: int, v: np.ndarray, q: np.ndarray, t: float) -> np.ndarray:
+    def _aim(self, i: int, q: np.ndarray, v: np.ndarray, t: float) -> np.ndarray:
         """Foot ``i``'s Raibert target [m] for a swing lifting off at ``t`` [s] in the state
         ``(q, v)``."""
         g = self.gait
@@ -273,10 +273,11 @@ class TrotController(StandingController):
 
     def feedback(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """The standing feedback plus a horizontal PD on the base (world axes); a leg in the
-        air follows its foot's target in the world by the Cartesian PD alone (its joint PD,
-        towards the inverse kinematics of the *desired* base, would push the foot into the
-        ground whenever the base is lower than meant: with a 20 % payload the base sags 7 mm
-        and the released foot accelerated into the ground at 8 m/s^2)."""
+        air follows its foot's target in the world by the Cartesian PD and keeps only the
+        damping of its joint PD (the joint stiffness, towards the inverse kinematics of the
+        *desired* base, would push the foot into the ground whenever the base is lower than
+        meant: with a 20 % payload the base sags 7 mm and the released foot accelerated into
+        the ground at 8 m/s^2)."""
         out = super().feedback(q, v)
         g = self.gains
         dq = pin.difference(self.model, q, self.q_d)
