@@ -133,7 +133,8 @@ class LearningTrotController(TrotController):
     Cycles are counted from the first completed ``(FL, HR)`` touchdown after the speed ramp
     (cycle 0); each one ends at the next. The feedback of every control step is observed with
     the time it held, and at each cycle's end the feedforward is updated (from cycle
-    ``learn_from`` on) and the cycle's RMS feedback appended to :attr:`feedback_rms`.
+    ``learn_from`` on); the cycle's RMS error per coordinate is appended to
+    :attr:`feedback_rms` and its summed feedback per motor to :attr:`share_rms`.
 
     Args (beyond :class:`TrotController`'s):
         learned: The learned feedforward (``None``: the mean, M = 0, at rate 0.5).
