@@ -15,8 +15,10 @@ $(BIN)/.installed: pyproject.toml
 run: $(BIN)/.installed
 	$(BIN)/feltool run configs/two_link_standard.yaml
 
+# Test files spread over the machine's cores (-n auto), each file whole on one worker
+# (--dist loadfile: a module's fixtures are built once).
 test: $(BIN)/.installed
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 bench: $(BIN)/.installed
 	$(BIN)/python benchmarks/backends.py
