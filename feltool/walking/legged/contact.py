@@ -20,6 +20,18 @@ impact of the feet in contact after it (``pin.impulseDynamics``, restitution 0):
 
 with :math:`\iota_i` the ground's impulse on foot :math:`i` in [N s]. Pinocchio builds and
 solves both systems; nothing here writes an equation of motion.
+
+**Several points of one link** (a flat sole as its corners): their constraints are redundant
+(four corners give 12 rows of rank 6), the accelerations and the velocities after an impact are
+still unique, the forces are not. Pinocchio's proximal solver does not settle on any of them
+(its multipliers drift along the null space), so such a set is solved as the KKT system on
+Pinocchio's :math:`M`, :math:`b`, :math:`J`, :math:`\dot J\dot q` with the pseudo-inverse of
+:math:`G = JM^{-1}J^\top`: :math:`f = -G^+(JM^{-1}(\tau - b) + \dot J\dot q)`,
+:math:`\ddot q = M^{-1}(\tau - b + J^\top f)`, the least-norm forces, which are those of a sole
+on equal, stiff springs at its points (the distribution minimising their elastic energy). The
+checks then judge that distribution: a conservative test of the sole's contact (it asks each
+point to push, which holds whenever the centre of pressure is inside the diamond of the
+corners, a subset of the sole).
 """
 
 from __future__ import annotations
@@ -28,11 +40,22 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg import cho_factor, cho_solve
 
 from feltool.walking.legged.model import LeggedModel
 
 #: Exact KKT solves (no proximal regularisation): the stance feet's Jacobian has full row rank
 _PROX = pin.ProximalSettings(1e-13, 1e-13, 0.0, 1)
+
+#: Eigenvalues of :math:`G` below this fraction of its largest are its null space (redundant sets)
+_RANK_TOL = 1e-10
+
+
+def pinv_psd(G: np.ndarray) -> np.ndarray:
+    """The pseudo-inverse of a symmetric positive semi-definite ``G``."""
+    ev, V = np.linalg.eigh(0.5 * (G + G.T))
+    keep = ev > _RANK_TOL * max(float(ev.max(initial=0.0)), 1e-300)
+    return (V[:, keep] / ev[keep]) @ V[:, keep].T
 
 
 @dataclass
@@ -105,6 +128,26 @@ class LeggedContact:
             self._sets[feet] = (models, datas, data)
         return self._sets[feet]
 
+    def link(self, foot: str) -> int:
+        """The joint index of the link that carries ``foot``."""
+        return self.model.frames[self.legged.feet[foot]].parentJoint
+
+    def redundant(self, feet: tuple[str, ...]) -> bool:
+        """Whether two or more of ``feet`` are points of the same link (their constraints are
+        then linearly dependent, and solved with :func:`pinv_psd`)."""
+        joints = [self.link(f) for f in feet]
+        return len(set(joints)) < len(joints)
+
+    def _kkt(self, q: np.ndarray, v: np.ndarray, feet: tuple[str, ...]):
+        """``(M^{-1} as a Cholesky factor, J, M^{-1} J^T, G^+)`` of a redundant set."""
+        m, d = self.model, self.data
+        M = np.array(pin.crba(m, d, q))
+        M = np.triu(M) + np.triu(M, 1).T
+        cho = cho_factor(M)
+        J = self.jacobian(q, feet)
+        MJ = cho_solve(cho, J.T)
+        return cho, J, MJ, pinv_psd(J @ MJ)
+
     def stance(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray,
                feet: tuple[str, ...]) -> StanceResult:
         """Accelerations and ground forces with ``feet`` held on the ground, under the
@@ -114,6 +157,12 @@ class LeggedContact:
         if not feet:
             return StanceResult(np.array(pin.aba(self.model, self.data, q, v, tau)),
                                 np.zeros((0, 3)), feet)
+        if self.redundant(feet):
+            cho, J, MJ, Gp = self._kkt(q, v, feet)
+            free = cho_solve(cho, np.asarray(tau, float)
+                             - np.array(pin.nonLinearEffects(self.model, self.data, q, v)))
+            f = -Gp @ (J @ free + self.drift(q, v, feet))
+            return StanceResult(free + MJ @ f, f.reshape(-1, 3), feet)
         models, datas, data = self.constraints(feet)
         a = pin.constraintDynamics(self.model, data, q, v, tau, models, datas, _PROX)
         forces = np.array([np.array(cd.contact_force.linear) for cd in datas])
@@ -123,8 +172,14 @@ class LeggedContact:
         """The perfectly inelastic impact that stops the feet ``feet`` (``pin.impulseDynamics``
         on their constraints): the velocities after it and each foot's impulse."""
         feet = tuple(feet)
-        models, datas, data = self.constraints(feet)
         before = self.kinetic_energy(q, v)
+        if self.redundant(feet):
+            _, J, MJ, Gp = self._kkt(q, v, feet)
+            imp = -Gp @ (J @ v)
+            v_plus = np.asarray(v, float) + MJ @ imp
+            return ImpactResult(v_plus, imp.reshape(-1, 3), feet,
+                                before - self.kinetic_energy(q, v_plus))
+        models, datas, data = self.constraints(feet)
         v_plus = np.array(pin.impulseDynamics(self.model, data, q, v, models, datas, 0.0,
                                               _PROX))
         impulses = np.array([np.array(cd.contact_force.linear) for cd in datas])
@@ -189,7 +244,7 @@ class LeggedContact:
             if np.abs(err).max() < 1e-13:
                 break
             J = self.jacobian(q, feet)
-            q = pin.integrate(self.model, q, -J.T @ np.linalg.solve(J @ J.T, err))
+            q = pin.integrate(self.model, q, -np.linalg.lstsq(J, err, rcond=None)[0])
         J = self.jacobian(q, feet)
         if np.abs(J @ v).max() > 1e-13:
             v = self.impact(q, v, feet).v

@@ -36,6 +36,13 @@ limits.
    the smallest :math:`\|u\|` of them inside the cones and limits (a QP in :math:`z`).
 2. *Least squares*, when no exact one keeps the cones (the wanted force would make a foot slip
    or pull): the cost plus :math:`\varepsilon\|u\|^2` under the same constraints.
+
+Several points of one link (a sole's corners) take forces :math:`\lambda(u) + Y y`: the
+least-norm ones (:mod:`.contact`) plus any along :math:`Y`, the null space of :math:`J^\top`
+(forces internal to the link, which move nothing). Both stages choose :math:`y` too (weighted
+by :math:`\varepsilon`), so the cones bound the link's whole contact wrench cone -- a centre of
+pressure anywhere in the sole -- not the least-norm distribution's smaller diamond; the plant's
+checks accept any distribution inside the cones (:mod:`.sole`).
 """
 
 from __future__ import annotations
@@ -46,9 +53,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 import qpsolvers
+from scipy.linalg import null_space
 
-from feltool.walking.legged.contact import LeggedContact
+from feltool.walking.legged.contact import LeggedContact, pinv_psd
 from feltool.walking.legged.model import LeggedModel
+
+
+#: The weight of a link's internal forces [N] against the torques [N m] in the QP's cost (a
+#: choice among equally good distributions; 1e-6 left proxqp's problem too ill-conditioned to
+#: converge on Talos' soles)
+INTERNAL = 1e-3
 
 
 @dataclass
@@ -174,7 +188,7 @@ class StandingController:
             J = self.contact.jacobian(q, feet)
             gamma = self.contact.drift(q, v, feet)
             MJ = Minv @ J.T
-            Lam = np.linalg.inv(J @ MJ)
+            Lam = pinv_psd(J @ MJ)  # the inverse; least-norm forces for points of one link
             W = Minv - MJ @ Lam @ MJ.T
             self._absorbed = (J, Lam @ MJ.T)
             lam0 = Lam @ (MJ.T @ b - gamma)
@@ -186,24 +200,37 @@ class StandingController:
         H = 0.5 * (H + H.T)
         c = B.T @ W @ tau_w
         lim = np.minimum(self.legged.effort, 1e6)
-        G, h = self._cones(lam0, L, n)
+        C, d = self._cones(n)
+        # points of one link: forces along the null space of J^T (internal to the link) change
+        # nothing but the distribution; the QP chooses them too (the link's whole wrench cone)
+        Y = null_space(J.T) if n and self.contact.redundant(feet) else np.zeros((3 * n, 0))
+        G = h = Gy = None
+        if C is not None:
+            G, h, Gy = C @ L, d - C @ lam0, C @ Y
         ev, V = np.linalg.eigh(H)
         keep = ev > self.rank_tol * max(ev.max(), 1e-300)
         self._metric = (B.T @ W, V[:, keep], ev[keep])
-        u, exact = self._exact(ev, V, keep, c, G, h, lim)
+        u, y, exact = self._exact(ev, V, keep, c, G, h, Gy, lim)
         solved = u is not None
         if u is None:  # the wanted accelerations break a cone or a limit: least squares in them
             self.inexact += 1
             eps = self.regularization * max(np.trace(H) / k, 1e-300)
-            P = H + eps * np.eye(k)
-            u = qpsolvers.solve_qp(P, -c, G, h, lb=-lim, ub=lim, solver="proxqp",
+            m = Y.shape[1]
+            P = np.block([[H + eps * np.eye(k), np.zeros((k, m))],
+                          [np.zeros((m, k)), INTERNAL * np.trace(H) / k * np.eye(m)]])
+            big = np.full(m, 1e9)
+            x = qpsolvers.solve_qp(P, np.r_[-c, np.zeros(m)],
+                                   None if G is None else np.hstack([G, Gy]), h,
+                                   lb=np.r_[-lim, -big], ub=np.r_[lim, big], solver="proxqp",
                                    eps_abs=1e-9, eps_rel=0.0)
-            solved = u is not None
+            solved = x is not None
+            u, y = (None, None) if x is None else (x[:k], x[k:])
         if u is None:
             self.infeasible += 1
             u = np.clip(np.linalg.lstsq(H, c, rcond=None)[0], -lim, lim)
+            y = np.zeros(Y.shape[1])
         u = np.asarray(u, float)
-        return Allocation(u, (lam0 + L @ u).reshape(n, 3), solved, exact)
+        return Allocation(u, (lam0 + L @ u + Y @ y).reshape(n, 3), solved, exact)
 
     def motor_share(self, tau: np.ndarray) -> np.ndarray:
         """``(k,)`` [N m]: the least-norm motor torques that give a generalized force ``tau``
@@ -223,38 +250,51 @@ class StandingController:
         J, LMJ = self._absorbed
         return tau - J.T @ (LMJ @ tau)
 
-    def _exact(self, s, V, keep, c, G, h, lim):
+    def _exact(self, s, V, keep, c, G, h, Gy, lim):
         """The allocations that give the wanted constrained accelerations exactly, ``u = u_0 + N
         z`` (``u_0`` the least-norm one, ``N`` the null space of :math:`B^\\top W B`, whose
         eigenvalues ``s`` and vectors ``V`` are given, ``keep`` its range), the smallest within
-        the cones and limits: a QP in ``z`` (identity Hessian). None when there is none."""
+        the cones ``G u + G_y y <= h`` (``y`` the links' internal forces, ``Gy`` their
+        columns) and limits: a QP in ``(z, y)`` (identity Hessian on ``z``). ``(u, y, exact)``,
+        ``(None, None, False)`` when there is none."""
         Vr, N = V[:, keep], V[:, ~keep]
         u0 = Vr @ ((Vr.T @ c) / s[keep])
-        if N.shape[1] == 0:
+        m = 0 if Gy is None else Gy.shape[1]
+        if N.shape[1] == 0 and m == 0:
             inside = np.all(np.abs(u0) <= lim) and (G is None or np.all(G @ u0 <= h + 1e-9))
-            return (u0, True) if inside else (None, False)
-        Gz = np.vstack([N, -N] + ([G @ N] if G is not None else []))
+            return (u0, np.zeros(0), True) if inside else (None, None, False)
+        k = N.shape[1]
+        pad = np.zeros((len(u0), m))
+        Gz = np.vstack([np.hstack([N, pad]), np.hstack([-N, pad])]
+                       + ([np.hstack([G @ N, Gy])] if G is not None else []))
         hz = np.concatenate([lim - u0, lim + u0] + ([h - G @ u0] if G is not None else []))
-        z = qpsolvers.solve_qp(np.eye(N.shape[1]), N.T @ u0, Gz, hz, solver="proxqp",
+        P = np.block([[np.eye(k), np.zeros((k, m))],
+                      [np.zeros((m, k)), INTERNAL * np.eye(m)]])
+        x = qpsolvers.solve_qp(P, np.r_[N.T @ u0, np.zeros(m)], Gz, hz, solver="proxqp",
                                eps_abs=1e-10, eps_rel=0.0)
-        if z is None:
-            return None, False
-        return u0 + N @ z, True
+        if x is None:
+            return None, None, False
+        return u0 + N @ x[:k], x[k:], True
 
-    def _cones(self, lam0: np.ndarray, L: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """``G u <= h``: each foot's normal-force floor and its inner friction pyramid."""
+    def _cones(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``C lambda <= d`` on the stance feet's forces ``lambda`` ``(3 n,)``: each foot's
+        normal-force floor and its inner friction pyramid."""
         mu = self.margin * self.friction / np.sqrt(2.0)
+        if n == 0:
+            return None, None
         rows, rhs = [], []
         for i in range(n):
             x, y, z = 3 * i, 3 * i + 1, 3 * i + 2
-            rows.append(-L[z])
-            rhs.append(lam0[z] - self.normal_force_min)
+            row = np.zeros(3 * n)
+            row[z] = -1.0
+            rows.append(row)
+            rhs.append(-self.normal_force_min)
             for t in (x, y):
-                for s in (1.0, -1.0):  # s f_t - mu f_z <= 0
-                    rows.append(s * L[t] - mu * L[z])
-                    rhs.append(-(s * lam0[t] - mu * lam0[z]))
-        if not rows:
-            return None, None
+                for sign in (1.0, -1.0):  # sign f_t - mu f_z <= 0
+                    row = np.zeros(3 * n)
+                    row[t], row[z] = sign, -mu
+                    rows.append(row)
+                    rhs.append(0.0)
         return np.array(rows), np.array(rhs)
 
     def __call__(self, q: np.ndarray, v: np.ndarray, feet: tuple[str, ...],

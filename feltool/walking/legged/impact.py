@@ -59,6 +59,7 @@ import qpsolvers
 from scipy.linalg import cho_factor, cho_solve
 
 from feltool.walking.legged.contact import LeggedContact
+from feltool.walking.legged.sole import distribute, polygon_cone
 
 
 @dataclass
@@ -89,19 +90,6 @@ class UnilateralImpact:
     normal_velocity: np.ndarray
     energy_lost: float
     exact: bool
-
-
-def polygon_cone(n: int, friction: float, faces: int = 8) -> np.ndarray:
-    """``A`` ``(n (F + 1), 3 n)`` with ``A iota <= 0`` the ``n`` feet's friction cones inscribed
-    in the circular cone of :math:`\\mu` = ``friction`` (``faces`` planes, then
-    ``-iota_z <= 0``); an infinite ``friction`` keeps only ``-iota_z <= 0``."""
-    if not np.isfinite(friction):
-        return np.kron(np.eye(n), np.array([[0.0, 0.0, -1.0]]))
-    theta = 2.0 * np.pi * np.arange(faces) / faces
-    rows = np.column_stack([np.cos(theta), np.sin(theta),
-                            -friction * np.cos(np.pi / faces) * np.ones(faces)])
-    rows = np.vstack([rows, [0.0, 0.0, -1.0]])
-    return np.kron(np.eye(n), rows)
 
 
 def unilateral_impact(contact: LeggedContact, q: np.ndarray, v: np.ndarray,
@@ -143,29 +131,58 @@ def unilateral_impact(contact: LeggedContact, q: np.ndarray, v: np.ndarray,
     # an unlimited friction: a wide finite cone for the QP (a half-space would let a foot with
     # no normal impulse take a tangential one), the polish checks the normal impulses alone
     A = polygon_cone(n, friction if np.isfinite(friction) else 1e3, faces)
-    lam = qpsolvers.solve_qp(G, c, A, np.zeros(A.shape[0]), solver="proxqp", eps_abs=1e-12,
-                             eps_rel=0.0)
+    lam = _impulse_qp(G, c, A, contact.redundant(feet))
     if lam is None:  # proxqp stopped short: the pyramid always holds 0, the energy's minimum
         lam = np.zeros(3 * n)
     lam = np.asarray(lam, float)
     before = contact.kinetic_energy(q, v_in)
     speed = max(float(np.abs(c).max(initial=0.0)), 1e-300)
     scale = max(float(np.abs(lam).max(initial=0.0)), 1e-300)
-    held = tuple(f for f, lz in zip(feet, lam[2::3]) if lz > tol * scale)
+    redundant = contact.redundant(feet)
+    if redundant:  # a link's impulse spreads over its points at will: held are those stopped
+        held = tuple(f for f, z in zip(feet, (J @ (v + MJ @ lam))[2::3]) if z <= 1e-6 * speed)
+    else:
+        held = tuple(f for f, lz in zip(feet, lam[2::3]) if lz > tol * scale)
     result = _polish(contact, q, v, feet, held, polygon_cone(n, friction, faces), tol * speed,
-                     before)
+                     before, friction)
     if result is None:
         lam = _refine(G, c, A, lam)
         v_plus = v + MJ @ lam
         imp = lam.reshape(n, 3)
+        if redundant:  # the held points of a link: their distribution furthest inside
+            idx = [feet.index(f) for f in held]
+            imp = np.zeros_like(imp)
+            imp[idx] = distribute([contact.link(f) for f in held], contact.positions(q)[
+                [list(contact.legged.feet).index(f) for f in held]], lam.reshape(n, 3)[idx],
+                friction)
         vz = (J @ v_plus)[2::3]
-        slack = (A @ lam).reshape(n, -1)[:, :-1].max(1, initial=-np.inf)  # the nearest face, <= 0
+        slack = (A @ imp.ravel()).reshape(n, -1)[:, :-1].max(1, initial=-np.inf)  # <= 0
         on_edge = slack >= -1e-6 * np.abs(imp[:, 2])
         sliding = tuple(f for f, e, lz in zip(feet, on_edge, imp[:, 2]) if e and lz > tol * scale)
         leaving = tuple(f for f in feet if f not in held)
         return UnilateralImpact(v_plus, imp, feet, held, leaving, sliding, vz,
                                 before - contact.kinetic_energy(q, v_plus), False)
     return result
+
+
+def _impulse_qp(G: np.ndarray, c: np.ndarray, A: np.ndarray, redundant: bool):
+    """The QP above, or None when proxqp stops short. For points of one link (``redundant``)
+    :math:`G` is singular: the impulses are :math:`R\\xi + Y y`, :math:`R` the range of
+    :math:`G` (the objective's, positive definite on it) and :math:`Y` its null space (impulses
+    internal to a link: they change no velocity), weighted by 1e-3 of :math:`G`'s mean
+    eigenvalue so the problem stays well conditioned."""
+    if not redundant:
+        return qpsolvers.solve_qp(G, c, A, np.zeros(A.shape[0]), solver="proxqp",
+                                  eps_abs=1e-12, eps_rel=0.0)
+    ev, V = np.linalg.eigh(G)
+    keep = ev > 1e-10 * max(float(ev.max()), 1e-300)
+    R, Y = V[:, keep], V[:, ~keep]
+    k, m = R.shape[1], Y.shape[1]
+    P = np.block([[np.diag(ev[keep]), np.zeros((k, m))],
+                  [np.zeros((m, k)), 1e-3 * ev[keep].mean() * np.eye(m)]])
+    x = qpsolvers.solve_qp(P, np.r_[R.T @ c, np.zeros(m)], A @ np.hstack([R, Y]),
+                           np.zeros(A.shape[0]), solver="proxqp", eps_abs=1e-12, eps_rel=0.0)
+    return None if x is None else R @ x[:k] + Y @ x[k:]
 
 
 def _refine(G: np.ndarray, c: np.ndarray, A: np.ndarray, lam: np.ndarray) -> np.ndarray:
@@ -182,11 +199,12 @@ def _refine(G: np.ndarray, c: np.ndarray, A: np.ndarray, lam: np.ndarray) -> np.
         N = Vt[rank:].T
     if N.shape[1] == 0:
         return np.zeros_like(lam)
-    exact = N @ np.linalg.solve(N.T @ G @ N, -N.T @ c)
+    exact = N @ np.linalg.lstsq(N.T @ G @ N, -N.T @ c, rcond=None)[0]
     return exact if np.all(A @ exact <= 1e-12 * size) else lam
 
 
-def _polish(contact: LeggedContact, q, v, feet, held, A, vtol, before) -> UnilateralImpact | None:
+def _polish(contact: LeggedContact, q, v, feet, held, A, vtol, before,
+            friction: float = np.inf) -> UnilateralImpact | None:
     """``pin.impulseDynamics`` on the ``held`` feet, if it satisfies the complementarity (their
     normal impulses positive and in the cones ``A``, every other candidate foot not moving
     down); else None. When the QP's guess of ``held`` is off at its tolerance, a few
@@ -194,13 +212,19 @@ def _polish(contact: LeggedContact, q, v, feet, held, A, vtol, before) -> Unilat
     fastest) are tried first."""
     n = len(feet)
     held = tuple(held)
+    names = list(contact.legged.feet)
     for _ in range(n + 2):
         imp = np.zeros((n, 3))
         v_plus = np.array(v, float)
         if held:
             res = contact.impact(q, v, held)
             v_plus = res.v
-            for f, i in zip(held, res.impulses):
+            impulses = res.impulses
+            if contact.redundant(held):  # a link's points: any distribution of its impulse
+                impulses = distribute([contact.link(f) for f in held],
+                                      contact.positions(q)[[names.index(f) for f in held]],
+                                      impulses, friction)
+            for f, i in zip(held, impulses):
                 imp[feet.index(f)] = i
         vz = (contact.jacobian(q, feet) @ v_plus)[2::3]
         leaving = tuple(f for f in feet if f not in held)
@@ -216,5 +240,9 @@ def _polish(contact: LeggedContact, q, v, feet, held, A, vtol, before) -> Unilat
             return None
         else:
             lost = before - contact.kinetic_energy(q, v_plus)
+            if contact.redundant(feet):  # a point of a link that the impact stops is held
+                rest = [f for f in leaving if abs(vz[feet.index(f)]) <= vtol]  # (no impulse)
+                held = tuple(f for f in feet if f in held or f in rest)
+                leaving = tuple(f for f in leaving if f not in rest)
             return UnilateralImpact(v_plus, imp, feet, held, leaving, (), vz, lost, True)
     return None

@@ -218,6 +218,40 @@ def load_solo12(effort: float | None = None) -> LeggedModel:
                         name="solo12")
 
 
+#: A sole's corners in its link's frame [m]: length ``(back, front)``, half width, and the
+#: sole's depth below the link's origin
+CORNERS = {"toe_out": (1, 1), "toe_in": (1, -1), "heel_out": (0, 1), "heel_in": (0, -1)}
+
+
+def sole_corners(name: str, link: str, back: float, front: float, half_width: float,
+                 depth: float, outward: float = 1.0) -> dict[str, dict]:
+    """Four point feet ``<name>_toe_out``, ``_toe_in``, ``_heel_out``, ``_heel_in`` at the
+    corners of a flat sole of ``link``: from ``-back`` to ``front`` [m] along the link's x,
+    ``half_width`` [m] to each side along its y (``outward`` +1 when the outer edge is at +y,
+    -1 when at -y), ``depth`` [m] below its origin (the feet's entries of
+    :func:`legged_model`)."""
+    out = {}
+    for corner, (toe, side) in CORNERS.items():
+        x = front if toe else -back
+        out[f"{name}_{corner}"] = {"link": link,
+                                   "offset": [x, side * outward * half_width, -depth]}
+    return out
+
+
+def load_talos_legs(effort: float | None = None) -> LeggedModel:
+    """Talos' legs and torso from example-robot-data (``talos_legs``, nq 19, nv 18, 48.7 kg),
+    each flat sole its four corners (:func:`sole_corners`: the feet ``L_*`` and ``R_*``), a
+    rectangle 0.21 m x 0.13 m inside the sole of its collision mesh (x from -0.116 to 0.105
+    m, y within +-0.067 m, 0.107 m below the ankle's last joint); ``q0`` its reference
+    posture; the URDF's effort limits (100-300 N m)."""
+    import example_robot_data as erd
+
+    robot = erd.load("talos_legs")
+    feet = {**sole_corners("L", "leg_left_6_link", 0.11, 0.10, 0.065, 0.107, 1.0),
+            **sole_corners("R", "leg_right_6_link", 0.11, 0.10, 0.065, 0.107, -1.0)}
+    return legged_model(robot.model, feet, q0=np.array(robot.q0), effort=effort,
+                        name="talos_legs")
+
 
 @dataclass(frozen=True)
 class Payload:
