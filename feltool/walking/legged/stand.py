@@ -19,8 +19,15 @@ from feltool.walking.checks import ContactChecks, NotWalking
 from feltool.walking.legged.checks import LeggedStats, check_air, check_stance, check_torques
 from feltool.walking.legged.contact import LeggedContact
 from feltool.walking.legged.control import StandingController
-from feltool.walking.legged.events import check_release, touchdown
+from feltool.walking.legged.events import (
+    LIFT_OFF_WINDOW,
+    check_release,
+    lingering,
+    tipping,
+    touchdown,
+)
 from feltool.walking.legged.model import LeggedModel
+from feltool.walking.legged.sole import distribute
 
 
 @dataclass
@@ -116,6 +123,7 @@ class StandState:
         stance: The feet on the ground.
         anchors: ``{foot: (3,)}`` where each stance foot is held [m].
         carry: An impact window reaching into this control step [s].
+        lingering: ``{foot: time released [s]}`` of the released feet still on the ground.
     """
 
     t: float
@@ -124,6 +132,7 @@ class StandState:
     stance: tuple[str, ...]
     anchors: dict
     carry: float = 0.0
+    lingering: dict = field(default_factory=dict)
 
 
 def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
@@ -206,6 +215,20 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
         Jb = pin.getJointJacobian(contact.model, contact.data, 1, pin.LOCAL_WORLD_ALIGNED)
         return Jb.T @ np.r_[push.force, push.torque]
 
+    since = {} if start is None else dict(start.lingering)  # released feet still down [s]
+
+    def release(contact, q, v, tau, kept, released, t):
+        """The plant's stance: the ``kept`` feet and the released ones still held (each
+        within :data:`LIFT_OFF_WINDOW` of its release, else :func:`check_release` reports
+        it); the controller has let them go."""
+        stay = lingering(contact, q, v, tau, kept, released)
+        for f in [f for f in since if f not in stay]:
+            del since[f]
+        late = [f for f in stay if t - since.setdefault(f, t) > LIFT_OFF_WINDOW]
+        if late:
+            check_release(contact, q, v, tau, kept, tuple(late))
+        return tuple(f for f in names if f in kept or f in stay)
+
     # an impact's window reaching past its sub-step, taken from the next one
     carry = 0.0 if start is None else start.carry
     section = None
@@ -221,8 +244,7 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
             alloc = controller(q, v, stance, t)
             u = check_torques(chk, st, alloc.u, legged.motors)
             tau = B @ u
-            if released:
-                check_release(contact, q, v, tau + external(q, t), stance, released)
+            stance = release(contact, q, v, tau + external(q, t), stance, released, t)
             start = (q, v)
             recorded = False
             for s in range(substeps):
@@ -233,9 +255,14 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                     def forcing(qq, offset, ts=ts, tau=tau):
                         return tau + external(qq, ts + offset)
 
+                    stance = tipping(contact, q, v, forcing(q, 0.0), stance)
                     q, v, f1, landed, used, after = touchdown(contact, chk, st, q, v, forcing,
                                                               h - done, stance, wanted,
                                                               impact_window)
+                    if stance and contact.redundant(stance):  # a sole: any distribution
+                        f1 = distribute([contact.link(f) for f in stance],
+                                        np.array([anchor[f] for f in stance]), f1,
+                                        chk.friction, max(0.0, chk.normal_force_min))
                     if stance:
                         check_stance(chk, st, stance, f1)
                     if not recorded:
@@ -250,13 +277,16 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                         stance = tuple(f for f in names if f in after)
                         pos = contact.positions(q)
                         for f in (f for f in landed if f in stance):
-                            anchor[f] = pos[names.index(f)]
+                            anchor[f] = pos[names.index(f)] * [1.0, 1.0, 0.0]  # on z = 0
+                        # the landed feet put on the ground while every foot down is held
+                        q, v = contact.hold(q, v, stance, np.array([anchor[f] for f in stance]))
                         touchdowns.append((ts + used, landed))
                         if on_touchdown is not None and schedule is not None:
                             on_touchdown(ts + used, landed)
                             if until_touchdown is not None and until_touchdown(ts + used):
                                 section = StandState(ts + used, q, v, stance,
-                                                     {f: anchor[f] for f in stance})
+                                                     {f: anchor[f] for f in stance},
+                                                     lingering=dict(since))
                                 raise _Stop
                             wanted = tuple(f for f in names if f in schedule(ts + used))
                             gone = tuple(f for f in stance if f not in wanted)
@@ -265,9 +295,8 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                             u = check_torques(chk, st, controller(q, v, stance, ts + used).u,
                                               legged.motors)
                             tau = B @ u
-                            if gone:
-                                check_release(contact, q, v, tau + external(q, ts + used),
-                                              stance, gone)
+                            stance = release(contact, q, v, tau + external(q, ts + used),
+                                             stance, gone, ts + used)
                     done = done + used if landed else h
                     q, v = contact.hold(q, v, stance, np.array([anchor[f] for f in stance]))
                     air = tuple(f for f in names if f not in stance)
@@ -292,4 +321,4 @@ def stand(legged: LeggedModel, controller: StandingController, q0: np.ndarray,
                     pitch=rpy[:, 1], stats=st, not_walking=reason, kind=kind,
                     touchdowns=touchdowns,
                     end=None if reason else section or StandState(
-                        t, q, v, stance, {f: anchor[f] for f in stance}, carry))
+                        t, q, v, stance, {f: anchor[f] for f in stance}, carry, dict(since)))
