@@ -1,4 +1,5 @@
-"""Feedback error learning on the Solo-12 trot in an unknown world (docs/legged.md, issue 32):
+"""Feedback error learning on the Solo-12 trot (or Talos' walk, ``--robot talos``) in an unknown
+world (docs/legged.md, issue 32):
 the trot of feltool.walking.legged.trot, its reference acquired on the known model
 (feltool.walking.legged.orbit, ``--acquire`` rounds, once for every seed), with the learned
 feedforward of feltool.walking.legged.learn, a payload of ``--payload`` of the robot's mass put on its base at
@@ -14,8 +15,12 @@ ratio) and over the one before (how much of the payload's feedback is left), the
 pitch, least normal force, largest friction ratio and torque, the forward speed over the second
 half, and the wall time.
 
-Usage: ``python benchmarks/legged_fel.py [--cycles 150] [--seeds 0-9] [--payload 0.2]
-[--change 3] [--no-learning] [--acquire 4] [--plant pinocchio|mujoco]``
+With ``--robot talos``: Talos' legs walking (feltool.walking.legged.walk: two soles of four
+corners, the centre of mass swaying as the inverted pendulum's orbit, the URDF's 100-300 N m
+motors), each cycle two steps.
+
+Usage: ``python benchmarks/legged_fel.py [--robot solo12|talos] [--cycles 150] [--seeds 0-9]
+[--payload 0.2] [--change 3] [--no-learning] [--acquire 4] [--plant pinocchio|mujoco]``
 """
 
 from __future__ import annotations
@@ -30,8 +35,10 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from feltool.walking.legged.learn import learn_trot  # noqa: E402
-from feltool.walking.legged.model import load_solo12  # noqa: E402
+from feltool.walking.legged.model import load_solo12, load_talos_legs  # noqa: E402
 from feltool.walking.legged.orbit import acquire_orbit  # noqa: E402
+from feltool.walking.legged.trot import TrotController  # noqa: E402
+from feltool.walking.legged.walk import IMPACT_WINDOW, biped_gains, biped_walk  # noqa: E402
 
 
 def seeds(text: str) -> list[int]:
@@ -41,6 +48,7 @@ def seeds(text: str) -> list[int]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--robot", choices=("solo12", "talos"), default="solo12")
     ap.add_argument("--cycles", type=int, default=150)
     ap.add_argument("--seeds", type=seeds, default=seeds("0-9"))
     ap.add_argument("--payload", type=float, default=0.2, help="fraction of the robot's mass")
@@ -50,16 +58,27 @@ def main() -> None:
     ap.add_argument("--acquire", type=int, default=4,
                     help="rounds of the reference's acquisition on the known model (0: none)")
     args = ap.parse_args()
-    solo = load_solo12(effort=2.7)
+    if args.robot == "talos":
+        robot = load_talos_legs()
+        q0 = robot.standing()
+        names = list(robot.feet)
+        gait = biped_walk(robot, q0, tuple(f for f in names if f.startswith("L_")),
+                          tuple(f for f in names if f.startswith("R_")))
+        extra, window = biped_gains(robot), IMPACT_WINDOW
+    else:
+        robot, gait, extra, window = load_solo12(effort=2.7), None, {}, 1e-4
     correction = None
     if args.acquire:
         t0 = time.perf_counter()
-        acq = acquire_orbit(solo, rounds=args.acquire)
+        known = None if gait is None else TrotController(robot, robot.standing(), gait=gait,
+                                                         **extra)
+        acq = acquire_orbit(robot, gait, rounds=args.acquire, controller=known,
+                            impact_window=window)
         correction = acq.correction
         print(f"reference acquired on the known model in {args.acquire} rounds "
               f"({time.perf_counter() - t0:.0f} s): summed feedback per round "
               + ", ".join(f"{f:.4f}" for f in acq.feedback) + " N m")
-    print(f"Solo-12 ({solo.mass:.3f} kg), payload {args.payload:.0%} from cycle {args.change}, "
+    print(f"{robot.name} ({robot.mass:.3f} kg), payload {args.payload:.0%} from cycle {args.change}, "
           f"{args.cycles} cycles, learning {'off' if args.no_learning else 'on'}, "
           f"plant {args.plant}")
     print("| seed | result | fb before [N m] | fb change | fb last | last/change | "
@@ -68,9 +87,10 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         t0 = time.perf_counter()
-        run = learn_trot(solo, cycles=args.cycles, payload=args.payload, change=args.change,
+        run = learn_trot(robot, cycles=args.cycles, payload=args.payload, change=args.change,
                          seed=seed, learn=not args.no_learning, plant=args.plant,
-                         correction=correction, acquire=0)
+                         correction=correction, acquire=0, gait=gait, controller=extra,
+                         impact_window=window)
         wall = time.perf_counter() - t0
         k = args.change
         fb = np.r_[run.feedback, np.full(max(0, k + 1 - len(run.feedback)), np.nan)]

@@ -222,14 +222,15 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                gait: TrotGait | None = None, rate_hz: float = 1000.0,
                impact_window: float = 1e-4, start_speed: float = 1.0,
                correction: ReferenceCorrection | None = None, acquire: int = 4,
-               feedforward: PhaseFeedforward | None = None) -> TrotLearning:
+               feedforward: PhaseFeedforward | None = None,
+               controller: dict | None = None) -> TrotLearning:
     """Trot ``cycles`` cycles learning the feedforward, the robot carrying a payload of
     ``payload`` times its mass on its base (a point mass at its origin,
     :class:`~feltool.walking.legged.model.Payload`) from the start of cycle
     ``change`` on, which the controller's model does not know.
 
     Args:
-        legged: The robot (feet named FL, FR, HL, HR).
+        legged: The robot (its feet those of ``gait.groups``).
         seed: Seeds the start velocity: the base's linear velocity ``0.05``, angular ``0.2``,
             joints ``0.2`` times ``start_speed`` times standard normal draws [m/s, rad/s].
         learn: False: the same rollout without learning (the feedback it needs).
@@ -243,17 +244,22 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
             as it is).
         feedforward: The learned feedforward to start from and learn into (its harmonics and
             rate; default ``PhaseFeedforward(0, nv)``: the cycle's mean at rate 0.5).
+        controller: :class:`~feltool.walking.legged.trot.TrotController`'s other arguments
+            (gains), for the acquisition and the learning alike (a biped's walk:
+            :func:`~feltool.walking.legged.walk.biped_gains`).
     """
     if plant not in ("pinocchio", "mujoco"):
         raise InputError(f"plant {plant!r}: 'pinocchio' or 'mujoco'")
     gait = TrotGait() if gait is None else gait
     q0 = legged.standing()
+    extra = dict(controller or {})
     if correction is None and acquire > 0:
+        known = TrotController(legged, q0, gait=copy.deepcopy(gait), **extra)
         correction = acquire_orbit(legged, gait, rounds=acquire, impact_window=impact_window,
-                                   rate_hz=rate_hz).correction
+                                   rate_hz=rate_hz, controller=known).correction
     ctl = LearningTrotController(legged, q0, gait=copy.deepcopy(gait), correction=correction,
                                  learn_from=0 if learn else np.iinfo(np.int64).max,
-                                 learned=feedforward)
+                                 learned=feedforward, **extra)
     gait = ctl.gait
     load = Payload(payload * legged.mass)
     v0 = random_start(legged, np.random.default_rng(seed), start_speed)

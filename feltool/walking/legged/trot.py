@@ -73,6 +73,21 @@ class TrotGait:
     raibert: float = 0.03
     approach_height: float = 0.005
     catch: float = 0.2
+    #: fraction of a swing at which its target reaches the ground (then goes on down) [-]
+    land: float = 0.9
+    #: feet of the swinging group down that make it the stance group (None: all of them; a
+    #: sole's corners: three, a support triangle, the last one landing after the switch)
+    switch_after: int | None = None
+    #: the two groups of feet that step in turn (a quadruped's diagonal pairs; a biped's soles)
+    groups: tuple[tuple[str, ...], tuple[str, ...]] = PAIRS
+    #: the desired horizontal motion is the centre of mass's (the base is placed under it by
+    #: the inverse kinematics), not the base's
+    steer_com: bool = False
+
+    def lateral(self, t: float) -> tuple[float, float]:
+        """The base's desired sideways offset [m] and its rate [m/s] at ``t`` [s] (none for a
+        trot: its diagonal support line runs under the base)."""
+        return 0.0, 0.0
 
     def base_x(self, t: float) -> tuple[float, float, float]:
         """Desired forward position [m], speed [m/s] and acceleration [m/s^2] at ``t`` [s]."""
@@ -89,7 +104,8 @@ class TrotGait:
         self.reset()
 
     def reset(self) -> None:
-        """Back to the start: standing, the pair ``(FR, HL)`` to swing first."""
+        """Back to the start: standing, the second group (a trot's ``(FR, HL)``) to swing
+        first."""
         self.swing = 1
         self.t_switch = self.start
         self.steps = 0
@@ -97,16 +113,17 @@ class TrotGait:
         self.down: set[str] = set()
 
     def swinging(self, t: float) -> int | None:
-        """Index in :data:`PAIRS` of the pair in the air at ``t`` [s] (None standing)."""
+        """Index in :attr:`groups` of the group in the air at ``t`` [s] (None standing)."""
         return None if t < self.start else self.swing
 
     def schedule(self, t: float) -> tuple[str, ...]:
         """The feet wanted on the ground at ``t`` [s]: the stance pair, and the swinging pair
         from ``catch`` of a swing (``period / 2``) after the last switch on."""
+        g = self.groups
         if t < self.start:
-            return PAIRS[0] + PAIRS[1]
+            return g[0] + g[1]
         late = t - self.t_switch >= self.catch * self.period / 2
-        return PAIRS[1 - self.swing] + (PAIRS[self.swing] if late else ())
+        return g[1 - self.swing] + (g[self.swing] if late else ())
 
     def touchdown(self, t: float, landed: tuple[str, ...]) -> None:
         """Feet landed at ``t`` [s]: once both feet of the swinging pair are down, it is the
@@ -114,14 +131,15 @@ class TrotGait:
         shares the stance with the old pair."""
         if t < self.start:
             return
-        self.down |= set(landed) & set(PAIRS[self.swing])
-        if self.down == set(PAIRS[self.swing]):
+        self.down |= set(landed) & set(self.groups[self.swing])
+        group = self.groups[self.swing]
+        if len(self.down) >= (len(group) if self.switch_after is None else self.switch_after):
             self.swing = 1 - self.swing
             self.t_switch = t
             self.steps += 1
             self.down = set()
             if self.steps % 2 == 0 and t >= self.start + self.ramp:
-                self.t_cycle = t  # (FL, HR) down: a cycle begins
+                self.t_cycle = t  # the first group, (FL, HR), down: a cycle begins
 
     def cycle_time(self, t: float) -> float | None:
         """Time [s] since the current cycle began (the pair ``(FL, HR)``'s touchdown after the
@@ -176,6 +194,7 @@ class TrotController(StandingController):
         base = pin.XYZQUATToSE3(self.q_ref[:7])
         P = self.legged.foot_positions(self.q_ref)
         self.offsets = P - base.translation  # nominal feet around the base, world axes
+        self.com_ref = np.array(pin.centerOfMass(self.model, self.data, self.q_ref)[:2])
         self.lift = {f: P[i].copy() for i, f in enumerate(self.names)}
         self.target = {f: P[i].copy() for i, f in enumerate(self.names)}
         self.anchor = {f: P[i].copy() for i, f in enumerate(self.names)}
@@ -189,9 +208,9 @@ class TrotController(StandingController):
         self.feet_d = (P0, np.zeros_like(P0))
 
     def _base(self, t: float) -> np.ndarray:
-        x = self.gait.base_x(t)[0]
         b = self.q_ref[:7].copy()
-        b[0] += x
+        b[0] += self.gait.base_x(t)[0]
+        b[1] += self.gait.lateral(t)[0]
         return b
 
     def _feet(self, t: float) -> np.ndarray:
@@ -200,7 +219,6 @@ class TrotController(StandingController):
         g = self.gait
         P = np.array([self.anchor[f] for f in self.names])
         ts = g.period / 2
-        land = 0.9  # the swing target reaches the ground at this fraction, then goes on down
         for i, f in enumerate(self.names):
             if f in self._stance:
                 continue
@@ -210,8 +228,8 @@ class TrotController(StandingController):
                 P[i] = p0 + d * tau
                 continue
             # the last approach_height above the ground: a straight line along d
-            t_c = land * ts - g.approach_height / -d[2]
-            p_c = p1 + d * (t_c - land * ts)
+            t_c = g.land * ts - g.approach_height / -d[2]
+            p_c = p1 + d * (t_c - g.land * ts)
             if tau >= t_c:
                 P[i] = p_c + d * (tau - t_c)
                 continue
@@ -225,9 +243,21 @@ class TrotController(StandingController):
         return P
 
     def pose(self, t: float) -> np.ndarray:
-        """The desired configuration at ``t`` [s] (inverse kinematics, warm-started)."""
-        return inverse_kinematics(self.legged, self._base(t), self._feet(t), self._q_ik,
-                                  iterations=10)
+        """The desired configuration at ``t`` [s] (inverse kinematics, warm-started); with
+        ``gait.steer_com`` the base shifted horizontally until the centre of mass is where the
+        gait wants the base's origin to be, relative to the reference posture's (to 1e-9 m)."""
+        base, feet = self._base(t), self._feet(t)
+        q = inverse_kinematics(self.legged, base, feet, self._q_ik, iterations=10)
+        if not self.gait.steer_com:
+            return q
+        goal = self.com_ref + base[:2] - self.q_ref[:2]
+        for _ in range(5):
+            miss = goal - pin.centerOfMass(self.model, self.data, q)[:2]
+            if np.abs(miss).max() < 1e-9:
+                break
+            base[:2] += miss
+            q = inverse_kinematics(self.legged, base, feet, q, iterations=10)
+        return q
 
     def _landing_velocity(self, q: np.ndarray, i: int) -> np.ndarray:
         """The foot's velocity [m/s] to land with: down at ``landing_speed``, along
@@ -248,15 +278,23 @@ class TrotController(StandingController):
         g = self.gait
         wanted = g.schedule(t)
         sw = g.swinging(t)
+        approach = {}
+        for i, f in enumerate(self.names):
+            if f not in stance:
+                link = self.model.frames[self.legged.feet[f]].parentJoint
+                approach.setdefault(link, []).append(self._landing_velocity(q, i))
         for i, f in enumerate(self.names):
             if f in stance:
                 self.anchor[f] = P[i].copy()
                 continue
-            self.approach[f] = self._landing_velocity(q, i)
+            # points of one link (a sole's corners) share their approach, so the sole moves
+            # as a rigid body
+            self.approach[f] = np.mean(approach[self.model.frames[self.legged.feet[f]]
+                                                .parentJoint], axis=0)
             if f not in self._stance:
                 continue
             self.lift[f], self.t_lift[f] = P[i].copy(), t
-            self.stepping[f] = sw is not None and f in PAIRS[sw] and f not in wanted
+            self.stepping[f] = sw is not None and f in g.groups[sw] and f not in wanted
             self.target[f] = self._aim(i, q, v, t) if self.stepping[f] else P[i].copy()
         self._stance = tuple(stance)
 
@@ -264,15 +302,16 @@ class TrotController(StandingController):
         """Foot ``i``'s Raibert target [m] for a swing lifting off at ``t`` [s] in the state
         ``(q, v)``."""
         g = self.gait
-        xd, vd, _ = g.base_x(t + 0.9 * g.period / 2)
+        xd, vd, _ = g.base_x(t + g.land * g.period / 2)
         vel = pin.XYZQUATToSE3(q[:7]).rotation @ v[:3]
         hip = self.q_ref[:3] + np.array([xd, 0.0, 0.0]) + self.offsets[i]
         aim = hip + np.array([vd, 0.0, 0.0]) * g.period / 4
-        aim[:2] += g.raibert * (vel[:2] - np.array([g.base_x(t)[1], 0.0]))
+        aim[:2] += g.raibert * (vel[:2] - np.array([g.base_x(t)[1], g.lateral(t)[1]]))
         return np.array([aim[0], aim[1], 0.0])
 
     def feedback(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The standing feedback plus a horizontal PD on the base (world axes); a leg in the
+        """The standing feedback plus a horizontal PD on the base (world axes; on the centre of
+        mass with ``gait.steer_com``); a leg in the
         air follows its foot's target in the world by the Cartesian PD and keeps only the
         damping of its joint PD (the joint stiffness, towards the inverse kinematics of the
         *desired* base, would push the foot into the ground whenever the base is lower than
@@ -281,10 +320,9 @@ class TrotController(StandingController):
         out = super().feedback(q, v)
         g = self.gains
         dq = pin.difference(self.model, q, self.q_d)
-        for foot in self.names:
-            if foot not in self._stance:
-                i = self.legged.leg(foot)
-                out[i] -= g.joints[0] * dq[i]
+        swing = sorted({i for foot in self.names if foot not in self._stance
+                        for i in self.legged.leg(foot)})  # once per leg (a sole has 4 feet)
+        out[swing] -= g.joints[0] * dq[swing]
         base = pin.XYZQUATToSE3(q[:7])
         goal = pin.XYZQUATToSE3(self.q_d[:7])
         lin = base.rotation @ v[:3]
@@ -292,6 +330,12 @@ class TrotController(StandingController):
         k, d = self.horizontal
         f = np.zeros(6)
         f[:2] = k * (goal.translation[:2] - base.translation[:2]) + d * (lin_d[:2] - lin[:2])
+        if self.gait.steer_com:  # the gait's motion is the centre of mass's: its error
+            com = pin.centerOfMass(self.model, self.data, q, v)
+            x, vx, _ = self.gait.base_x(self._t)
+            y, vy = self.gait.lateral(self._t)
+            f[:2] = k * (self.com_ref + [x, y] - com[:2]) + d * (np.array([vx, vy])
+                                                                - self.data.vcom[0][:2])
         pin.computeJointJacobians(self.model, self.data, q)
         Jb = pin.getJointJacobian(self.model, self.data, 1, pin.LOCAL_WORLD_ALIGNED)
         out += Jb.T @ f
