@@ -20,7 +20,8 @@ corners, the centre of mass swaying as the inverted pendulum's orbit, the URDF's
 motors), each cycle two steps.
 
 Usage: ``python benchmarks/legged_fel.py [--robot solo12|talos] [--cycles 150] [--seeds 0-9]
-[--payload 0.2] [--change 3] [--no-learning] [--acquire 4] [--plant pinocchio|mujoco]``
+[--payload 0.2] [--change 3] [--no-learning] [--harmonics 0] [--acquire 4]
+[--plant pinocchio|mujoco]``
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from feltool.walking.legged.learn import learn_trot  # noqa: E402
+from feltool.walking.legged.learn import PhaseFeedforward, learn_trot  # noqa: E402
 from feltool.walking.legged.model import load_solo12, load_talos_legs  # noqa: E402
 from feltool.walking.legged.orbit import acquire_orbit  # noqa: E402
 from feltool.walking.legged.trot import TrotController  # noqa: E402
@@ -54,6 +55,8 @@ def main() -> None:
     ap.add_argument("--payload", type=float, default=0.2, help="fraction of the robot's mass")
     ap.add_argument("--change", type=int, default=3, help="the cycle the payload is put on")
     ap.add_argument("--no-learning", action="store_true")
+    ap.add_argument("--harmonics", type=int, default=0,
+                    help="highest harmonic M of the learned feedforward (0: the cycle's mean)")
     ap.add_argument("--plant", choices=("pinocchio", "mujoco"), default="pinocchio")
     ap.add_argument("--acquire", type=int, default=4,
                     help="rounds of the reference's acquisition on the known model (0: none)")
@@ -79,7 +82,8 @@ def main() -> None:
               f"({time.perf_counter() - t0:.0f} s): summed feedback per round "
               + ", ".join(f"{f:.4f}" for f in acq.feedback) + " N m")
     print(f"{robot.name} ({robot.mass:.3f} kg), payload {args.payload:.0%} from cycle {args.change}, "
-          f"{args.cycles} cycles, learning {'off' if args.no_learning else 'on'}, "
+          f"{args.cycles} cycles, learning {'off' if args.no_learning else 'on'} "
+          f"(M = {args.harmonics}), "
           f"plant {args.plant}")
     print("| seed | result | fb before [N m] | fb change | fb last | last/change | "
           "last/before | max roll / pitch [rad] | min f_n [N] | max f_t/f_n | max |u| [N m] "
@@ -90,7 +94,8 @@ def main() -> None:
         run = learn_trot(robot, cycles=args.cycles, payload=args.payload, change=args.change,
                          seed=seed, learn=not args.no_learning, plant=args.plant,
                          correction=correction, acquire=0, gait=gait, controller=extra,
-                         impact_window=window)
+                         impact_window=window,
+                         feedforward=PhaseFeedforward(args.harmonics, robot.nv))
         wall = time.perf_counter() - t0
         k = args.change
         fb = np.r_[run.feedback, np.full(max(0, k + 1 - len(run.feedback)), np.nan)]

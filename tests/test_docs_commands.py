@@ -64,6 +64,16 @@ EXEMPT = {
     "python benchmarks/legged_fel.py --seeds 0-9": "a measured benchmark: 10 seeds x 150 cycles, "
                                                    "~20 min per plant (the page's short run and "
                                                    "tests/test_legged_learn.py)",
+    "python benchmarks/legged_walk.py --seeds 10": "a measured benchmark: 10 seeds x 14 s of "
+                                                   "Talos walking, ~15 min (tests/"
+                                                   "test_legged_walk.py walks 20 steps)",
+    "python benchmarks/legged_fel.py --robot talos": "a measured benchmark: Talos' walk learning "
+                                                     "under a payload, minutes per seed "
+                                                     "(tests/test_legged_config.py runs it "
+                                                     "short from its config)",
+    "feltool run configs/legged/talos_walk.yaml": "10 seeds x 20 cycles of Talos walking, ~30 "
+                                                  "min (tests/test_legged_config.py runs it "
+                                                  "short through the command)",
 }
 #: A command with one of these needs a service that is not here.
 NEEDS_SERVICE = ("--zmq-url", "--scheduler")

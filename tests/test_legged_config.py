@@ -153,7 +153,7 @@ BAD = [
     ({"walking__feet__FL": {"frame": "NOPE"}}, "walking.feet.FL: no frame 'NOPE'"),
     ({"walking__feet__FL": {"frame": "FL_FOOT", "link": "FL_LOWER_LEG"}}, "walking.feet.FL:"),
     ({"robot": "missing.urdf"}, "robot: "),
-    ({"robot": "anymal"}, "robot: 'anymal' is neither solo12 nor a URDF"),
+    ({"robot": "anymal"}, "robot: 'anymal' is neither solo12, talos_legs nor a URDF"),
     ({"robot": "{urdf}", "walking__feet": None}, "walking.feet: required for a URDF robot"),
     ({"effort": -1}, "effort:"),
     ({"payload__fraction": 0}, "payload.fraction:"),
@@ -198,3 +198,72 @@ def test_options_the_legged_run_does_not_take_exit_2(tmp_path, capsys):
                      "--seeds", "0", *extra]) == 2
         assert "legged" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+WALK = CONFIGS / "legged" / "talos_walk.yaml"
+
+
+def _walk(tmp_path: Path, **changes) -> Path:
+    raw = yaml.safe_load(WALK.read_text())
+    for key, value in changes.items():
+        node, parts = raw, key.split("__")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        if value is None:
+            node.pop(parts[-1], None)
+        else:
+            node[parts[-1]] = value
+    path = tmp_path / "walk.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def test_the_shipped_biped_walk_checks(capsys):
+    assert main(["check", str(WALK)]) == 0
+    out = capsys.readouterr().out
+    assert "ok - robot talos_legs" in out and "walk 0.15 m/s" in out
+    assert "feet L_toe_out, L_toe_in, L_heel_out, L_heel_in, R_toe_out" in out
+
+
+WALK_BAD = [
+    ({"walking__walk": None}, "walking.walk: a biped (talos_legs) walks"),
+    ({"walking__walk__right": ["L_toe_out"]}, "walking.walk: a foot in both soles or twice"),
+    ({"walking__gait": {"speed": 0.3}}, "walking.gait: the trot's"),
+    ({"plant__simulator": "mujoco"}, "plant.simulator: a biped's walk runs on the pinocchio"),
+    ({"walking__walk__sway": 3}, "walking.walk.sway:"),
+    ({"walking__feet": {"L_toe_out": {"link": "leg_left_6_link", "offset": [0.1, 0.065, -0.107]}}},
+     "walking.walk: not among walking.feet: L_toe_in, L_heel_out"),
+    ({"walking__feet": {"L_toe_out": {"link": "no_such_link", "offset": [0, 0, 0]},
+                        "L_toe_in": {"link": "leg_left_6_link"}, "L_heel_out":
+                        {"link": "leg_left_6_link"}, "L_heel_in": {"link": "leg_left_6_link"},
+                        "R_toe_out": {"link": "leg_right_6_link"}, "R_toe_in":
+                        {"link": "leg_right_6_link"}, "R_heel_out": {"link": "leg_right_6_link"},
+                        "R_heel_in": {"link": "leg_right_6_link"}}},
+     "walking.feet.L_toe_out: no link 'no_such_link'"),
+]
+
+
+@pytest.mark.parametrize("changes, message", WALK_BAD, ids=[m.split(":")[0] + str(i) for i, (_, m)
+                                                            in enumerate(WALK_BAD)])
+def test_a_bad_walk_field_exits_2_naming_it(tmp_path, capsys, changes, message):
+    path = _walk(tmp_path, **changes)
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+    assert "Traceback" not in err and err.count("\n") == 1, err
+
+
+def test_a_short_biped_run_walks_and_writes_its_directory(tmp_path):
+    """Talos' walk from its config through the installed command, 1 seed x 4 cycles, the
+    payload at cycle 2: exit 0 (no success bound), every cycle walked physically, the summary's
+    feedback rising at the payload's cycle."""
+    out = tmp_path / "run"
+    proc = feltool("run", str(_walk(tmp_path, payload__cycle=2)), "--seeds", "0", "--cycles",
+                   "4", "--out", str(out), "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    seed = summary["seeds"][0]
+    assert seed["walked"] and seed["cycles"] == 4
+    assert seed["fb_change"] > 3 * seed["fb_before_change"]
+    with open(out / "metrics.csv") as fh:
+        assert len(list(csv.DictReader(fh))) == 4

@@ -27,7 +27,8 @@ from feltool.errors import ConfigError
 TROT_FEET = ("FL", "FR", "HL", "HR")
 
 #: The robots a legged config names without a URDF path
-NAMED_ROBOTS = ("solo12", "example-robot-data:solo12")
+NAMED_ROBOTS = ("solo12", "example-robot-data:solo12", "talos_legs",
+                "example-robot-data:talos_legs")
 
 
 class TrotGaitConfig(Strict):
@@ -56,6 +57,33 @@ class TrotGaitConfig(Strict):
         "after which the foot is wanted back on the ground [-], in (0, 1).")
 
 
+class WalkGaitConfig(Strict):
+    """A biped's walk (feltool/walking/legged/walk.py): the two soles step in turn, the centre
+    of mass sways over the stance sole as the linear inverted pendulum's orbit."""
+
+    left: list[str] = Field(min_length=1, description="The left sole's feet (its corners), "
+                            "standing first.")
+    right: list[str] = Field(min_length=1, description="The right sole's feet, stepping first.")
+    speed: NonNegFloat = Field(0.15, le=2.0, description="Forward speed after the ramp, in "
+                               "[m/s].")
+    period: PositiveFloat = Field(1.2, le=10.0, description="One cycle, both soles stepping "
+                                  "once, in [s].")
+    ramp: PositiveFloat = Field(2.0, le=100.0, description="Time to reach the speed from the "
+                                "first step, in [s].")
+    start: PositiveFloat = Field(1.5, le=100.0, description="Time on both soles before the "
+        "first step, in [s]; it must leave room for the weight shift (shift + 0.9 period / 4).")
+    step_height: PositiveFloat = Field(0.05, le=1.0, description="The swing sole's apex above "
+                                       "the ground, in [m].")
+    landing_speed: PositiveFloat = Field(0.05, le=5.0, description="The swing target's downward "
+                                         "speed at its end, in [m/s].")
+    catch: Annotated[float, Field(gt=0, lt=1)] = Field(0.3, description="Fraction of a swing "
+        "after which the sole is wanted back on the ground [-].")
+    sway: PositiveFloat = Field(1.0, le=2.0, description="Where the centre of pressure is put in "
+        "the stance sole, as a fraction of the sole's distance from the midline [-].")
+    shift: PositiveFloat = Field(0.8, le=100.0, description="The weight shift's duration before "
+                                 "the first step, in [s].")
+
+
 class LeggedWalkingConfig(Strict):
     """The legged robot's base and feet, and its gait."""
 
@@ -66,6 +94,9 @@ class LeggedWalkingConfig(Strict):
         "in its frame ({link: NAME, offset: [x, y, z]} in [m]); required for a URDF robot, "
         "default for solo12 its FL_FOOT, FR_FOOT, HL_FOOT, HR_FOOT frames.")
     gait: TrotGaitConfig = Field(default_factory=TrotGaitConfig, description="The trot.")
+    walk: WalkGaitConfig | None = Field(None, description="A biped's walk instead of the trot "
+        "(the feet are then the soles' corners, left and right; default for talos_legs: each "
+        "sole's four corners L_* and R_*).")
     acquire: int = Field(4, ge=0, le=20, description="Rounds of the reference's acquisition "
         "on the known model before the seeds run, once for all of them [-] (the plan corrected "
         "by what the robot did in a settled cycle, feltool/walking/legged/orbit.py); 0: the "
@@ -139,8 +170,9 @@ class LeggedExperimentConfig(Strict):
                       description="Experiment name; used for the run directory.")
     description: str = Field("", description="Free text shown in summaries.")
     robot: str = Field(min_length=1, description="solo12 (Solo-12 from example-robot-data; also "
-        "example-robot-data:solo12) or a URDF file's path (relative to the config file), put on "
-        "a free flyer; a URDF needs walking.feet.")
+        "example-robot-data:solo12), talos_legs (Talos' legs and torso, a biped on two soles; "
+        "walking.walk) or a URDF file's path (relative to the config file), put on a free "
+        "flyer; a URDF needs walking.feet.")
     effort: PositiveFloat | None = Field(None, le=1.0e4, description="Every motor's torque limit "
         "in [N m], replacing the URDF's (Solo-12's URDF says 1000; its actuator's peak is "
         "2.7); default the URDF's.")
@@ -166,8 +198,8 @@ class LeggedExperimentConfig(Strict):
     @classmethod
     def _robot(cls, robot: str) -> str:
         if robot not in NAMED_ROBOTS and not robot.endswith(".urdf"):
-            raise ValueError(f"'{robot}' is neither {NAMED_ROBOTS[0]} nor a URDF file's path "
-                             "(ending in .urdf)")
+            raise ValueError(f"'{robot}' is neither {NAMED_ROBOTS[0]}, {NAMED_ROBOTS[2]} nor "
+                             "a URDF file's path (ending in .urdf)")
         return robot
 
     @field_validator("seeds")
@@ -178,7 +210,10 @@ class LeggedExperimentConfig(Strict):
     def problems(self) -> list[tuple[str, str]]:
         """Checks across fields, as ``(yaml_path, message)`` pairs."""
         out = []
-        feet = self.walking.feet
+        feet, walk = self.walking.feet, self.walking.walk
+        talos = self.robot in NAMED_ROBOTS[2:]
+        if walk is not None or talos:
+            return out + self._walk_problems()
         if feet is not None:
             out += [(f"walking.feet.{f}", f"unknown foot name '{f}': the trot's feet are "
                                           f"{', '.join(TROT_FEET)} (front/hind, left/right)")
@@ -196,6 +231,39 @@ class LeggedExperimentConfig(Strict):
         if self.plant.simulator == "mujoco" and "impact_window_s" in self.sim.model_fields_set:
             out.append(("sim.impact_window_s", "the rigid plant's impact window; MuJoCo's soft "
                                                "contacts have none (plant.simulator: mujoco)"))
+        return out
+
+    def _walk_problems(self) -> list[tuple[str, str]]:
+        """A biped's walk: ``walking.walk`` given, not with ``walking.gait``; its soles' feet
+        the feet, each once."""
+        w = self.walking
+        if w.walk is None:
+            return [("walking.walk", "a biped (talos_legs) walks: give walking.walk with its "
+                                     "left and right soles' feet")]
+        out = []
+        if "gait" in w.model_fields_set:
+            out.append(("walking.gait", "the trot's; a walk's timing is walking.walk's"))
+        sole = w.walk.left + w.walk.right
+        twice = sorted({f for f in sole if sole.count(f) > 1})
+        if twice:
+            out.append(("walking.walk", f"a foot in both soles or twice: {', '.join(twice)}"))
+        if w.feet is not None:
+            missing = [f for f in sole if f not in w.feet]
+            if missing:
+                out.append(("walking.walk", f"not among walking.feet: {', '.join(missing)}"))
+            spare = [f for f in w.feet if f not in sole]
+            if spare:
+                out.append(("walking.feet", f"in neither sole (walking.walk.left, .right): "
+                                            f"{', '.join(spare)}"))
+        elif self.robot not in NAMED_ROBOTS:
+            out.append(("walking.feet", "required for a URDF robot: each sole's corners, "
+                                        "{link: NAME, offset: [x, y, z]}"))
+        if self.success.ratio_from == "change" and self.payload is None:
+            out.append(("success.ratio_from", "change needs a payload (payload: {fraction: "
+                                              "..., cycle: ...})"))
+        if self.plant.simulator == "mujoco":
+            out.append(("plant.simulator", "a biped's walk runs on the pinocchio plant (its "
+                                           "soles' corners are not MuJoCo's contacts yet)"))
         return out
 
     @property

@@ -64,7 +64,12 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
     the config's directory, for a relative URDF path). Raises :class:`ConfigError` (of the
     config file ``source``) naming ``robot`` (a missing or unreadable URDF) or
     ``walking.feet.<foot>`` (no such frame or link)."""
-    from feltool.walking.legged.model import SOLO12_FEET, legged_model, load_legged_urdf
+    from feltool.walking.legged.model import (
+        SOLO12_FEET,
+        TALOS_FEET,
+        legged_model,
+        load_legged_urdf,
+    )
 
     feet = {name: foot.model_dump(exclude_none=True) for name, foot in
             (cfg.walking.feet or {}).items()}
@@ -78,9 +83,11 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
         if path is None:
             import example_robot_data as erd
 
-            robot = erd.load("solo12")
-            return legged_model(robot.model, feet or SOLO12_FEET, q0=np.array(robot.q0),
-                                effort=cfg.effort, name="solo12")
+            name = cfg.robot.split(":")[-1]
+            robot = erd.load(name)
+            default = SOLO12_FEET if name == "solo12" else TALOS_FEET
+            return legged_model(robot.model, feet or default, q0=np.array(robot.q0),
+                                effort=cfg.effort, name=name)
         if not path.is_file():
             raise ConfigError([("robot", f"{path}: no such URDF file")])
         return load_legged_urdf(path, feet, effort=cfg.effort)
@@ -92,27 +99,44 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
 
 def describe(cfg: LeggedExperimentConfig, legged) -> str:
     """One line: the robot, gait, plant, payload and seeds (``feltool check``)."""
-    g, p = cfg.walking.gait, cfg.payload
+    g, p = cfg.walking.walk or cfg.walking.gait, cfg.payload
     load = "no payload" if p is None else \
         f"payload {p.fraction:.0%} of {legged.mass:.3g} kg from cycle {p.cycle}"
     return (f"robot {legged.name} ({legged.mass:.3g} kg, {legged.nv - 6} motors, limit "
-            f"{float(np.max(legged.effort)):g} N m, feet {', '.join(legged.feet)}), trot "
+            f"{float(np.max(legged.effort)):g} N m, feet {', '.join(legged.feet)}), "
+            f"{'walk' if cfg.walking.walk else 'trot'} "
             f"{g.speed:g} m/s, period {g.period:g} s, plant {cfg.plant.simulator}, {load}, "
             f"learning {'on' if cfg.learning.enabled else 'off'}, {len(cfg.seed_list)} seeds x "
             f"{cfg.sim.cycles} cycles")
+
+
+def gait_and_controller(cfg: LeggedExperimentConfig, legged):
+    """The config's gait (the trot, or a biped's walk) and the controller's other arguments
+    (the walk's gains, :func:`~feltool.walking.legged.walk.biped_gains`)."""
+    from feltool.walking.legged.trot import TrotGait
+    from feltool.walking.legged.walk import biped_gains, biped_walk
+
+    walk = cfg.walking.walk
+    if walk is None:
+        return TrotGait(**cfg.walking.gait.model_dump()), {}
+    timing = walk.model_dump(exclude={"left", "right"})
+    gait = biped_walk(legged, legged.standing(), tuple(walk.left), tuple(walk.right), **timing)
+    return gait, biped_gains(legged)
 
 
 def acquire_reference(cfg: LeggedExperimentConfig, legged):
     """The reference's correction acquired on the known model (``walking.acquire`` rounds,
     :func:`~feltool.walking.legged.orbit.acquire_orbit`), or None for 0 rounds."""
     from feltool.walking.legged.orbit import acquire_orbit
-    from feltool.walking.legged.trot import TrotGait
+    from feltool.walking.legged.trot import TrotController
 
     if cfg.walking.acquire == 0:
         return None
-    return acquire_orbit(legged, TrotGait(**cfg.walking.gait.model_dump()),
-                         rounds=cfg.walking.acquire, impact_window=cfg.sim.impact_window_s,
-                         rate_hz=cfg.sim.rate_hz)
+    gait, extra = gait_and_controller(cfg, legged)
+    return acquire_orbit(legged, gait, rounds=cfg.walking.acquire,
+                         impact_window=cfg.sim.impact_window_s, rate_hz=cfg.sim.rate_hz,
+                         controller=TrotController(legged, legged.standing(), gait=gait,
+                                                   **extra))
 
 
 def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int,
@@ -120,13 +144,13 @@ def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int,
     """One seed's learning trot on the reference ``correction`` (:func:`acquire_reference`);
     its metrics rows, params and summary entry."""
     from feltool.walking.legged.learn import PhaseFeedforward, learn_trot
-    from feltool.walking.legged.trot import TrotGait
 
     L, p = cfg.learning, cfg.payload
+    gait, extra = gait_and_controller(cfg, legged)
     t0 = time.perf_counter()
     run = learn_trot(legged, cycles=cycles, payload=p.fraction if p else 1.0,
                      change=p.cycle if p else cycles + 10, seed=seed, learn=L.enabled,
-                     plant=cfg.plant.simulator, gait=TrotGait(**cfg.walking.gait.model_dump()),
+                     plant=cfg.plant.simulator, gait=gait, controller=extra,
                      rate_hz=cfg.sim.rate_hz, impact_window=cfg.sim.impact_window_s,
                      start_speed=cfg.sim.start_velocity_scale,
                      feedforward=PhaseFeedforward(L.harmonics, legged.nv, L.rate),

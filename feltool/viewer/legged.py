@@ -25,8 +25,9 @@ def visual_robot(robot: str, urdf: Path | None):
     if urdf is None:
         import example_robot_data as erd
 
-        r = erd.load("solo12")
-        return SimpleNamespace(model=r.model, visual_model=r.visual_model, name="solo12")
+        name = robot.split(":")[-1]
+        r = erd.load(name)
+        return SimpleNamespace(model=r.model, visual_model=r.visual_model, name=name)
     try:
         model, _, visual = pin.buildModelsFromUrdf(str(urdf), str(Path(urdf).parent),
                                                    pin.JointModelFreeFlyer())

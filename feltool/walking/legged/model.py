@@ -238,6 +238,11 @@ def sole_corners(name: str, link: str, back: float, front: float, half_width: fl
     return out
 
 
+#: The feet of Talos' legs in example-robot-data: each sole's four corners (:func:`load_talos_legs`)
+TALOS_FEET = {**sole_corners("L", "leg_left_6_link", 0.11, 0.10, 0.065, 0.107, 1.0),
+              **sole_corners("R", "leg_right_6_link", 0.11, 0.10, 0.065, 0.107, -1.0)}
+
+
 def load_talos_legs(effort: float | None = None) -> LeggedModel:
     """Talos' legs and torso from example-robot-data (``talos_legs``, nq 19, nv 18, 48.7 kg),
     each flat sole its four corners (:func:`sole_corners`: the feet ``L_*`` and ``R_*``), a
@@ -247,9 +252,7 @@ def load_talos_legs(effort: float | None = None) -> LeggedModel:
     import example_robot_data as erd
 
     robot = erd.load("talos_legs")
-    feet = {**sole_corners("L", "leg_left_6_link", 0.11, 0.10, 0.065, 0.107, 1.0),
-            **sole_corners("R", "leg_right_6_link", 0.11, 0.10, 0.065, 0.107, -1.0)}
-    return legged_model(robot.model, feet, q0=np.array(robot.q0), effort=effort,
+    return legged_model(robot.model, TALOS_FEET, q0=np.array(robot.q0), effort=effort,
                         name="talos_legs")
 
 

@@ -311,8 +311,8 @@ class TrotController(StandingController):
 
     def feedback(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """The standing feedback plus a horizontal PD on the base (world axes; on the centre of
-        mass with ``gait.steer_com``); a leg in the
-        air follows its foot's target in the world by the Cartesian PD and keeps only the
+        mass with ``gait.steer_com``); a leg in the air follows its feet's targets in the world
+        by the Cartesian PD and keeps only the
         damping of its joint PD (the joint stiffness, towards the inverse kinematics of the
         *desired* base, would push the foot into the ground whenever the base is lower than
         meant: with a 20 % payload the base sags 7 mm and the released foot accelerated into

@@ -4,8 +4,9 @@ QP) on the two soles, each sole its four corners (:func:`~.model.sole_corners`),
 sways sideways over the stance sole.
 
 **Sway.** The gait's horizontal motion is the centre of mass's (``steer_com``: the inverse
-kinematics places the base so that the centre of mass is there). With one sole on the ground the centre of pressure must stay in it, so the base cannot
-simply travel along the midline as a trot's does. Its sideways motion is the linear inverted
+kinematics places the base so that the centre of mass is there). With one sole on the ground the
+centre of pressure must stay in it, so the centre of mass cannot simply travel along the midline
+as a trot's base does. Its sideways motion is the linear inverted
 pendulum's periodic orbit with the centre of pressure at the middle of the stance sole
 (:math:`\ddot y = \omega^2 (y - p)`, :math:`\omega = \sqrt{g / z_c}`, :math:`z_c` the centre of
 mass's height): over each step, from the switch that made its sole the stance (an event, as
