@@ -31,7 +31,7 @@ _REFUSED = {"resume": "a legged run cannot be resumed yet; start it again with a
 
 
 def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]) -> int:
-    """``feltool run`` on a legged config: exit 0 when every seed trotted physically through
+    """``feltool run`` on a legged config: exit 0 when every seed trotted (or walked) physically through
     every cycle and met ``success:``, 1 otherwise, 2 on bad input."""
     from feltool.cli.common import progress_mode
     from feltool.config.legged import parse_legged_config
@@ -56,7 +56,8 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     if args.out is not None:
         refuse_taken(args.out)
     out_dir = args.out or default_out_dir(cfg.name)
-    print(f"feltool: legged trot, {cfg.plant.simulator} plant (one seed at a time)", flush=True)
+    gait = "walk" if cfg.walking.walk else "trot"
+    print(f"feltool: legged {gait}, {cfg.plant.simulator} plant (one seed at a time)", flush=True)
     summary = run_legged(cfg, raw, path, out_dir, progress=sys.stderr if bar or lines else None,
                          legged=legged)
     print_summary(summary, out_dir)

@@ -343,7 +343,7 @@ def draw_feedback(out_dir: Path, results: list[dict], change: int | None) -> Pat
 
 
 def print_summary(summary: dict[str, Any], out_dir: Path, out: TextIO | None = None) -> None:
-    """The run's table (to ``out``, default stdout): per seed, whether it trotted, its
+    """The run's table (to ``out``, default stdout): per seed, whether it trotted (walked), its
     feedback around the change, the ratio; the verdict."""
     out = sys.stdout if out is None else out
     fmt = lambda x, f: "-" if x is None else format(x, f)  # noqa: E731
@@ -372,7 +372,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path, out: TextIO | None = N
 
 
 def exit_code(summary: dict[str, Any]) -> int:
-    """0 every seed trotted through every cycle and met success:, else 1."""
+    """0 every seed trotted (walked) through every cycle and met success:, else 1."""
     return 1 if summary["aggregate"]["n_failed"] else 0
 
 

@@ -58,7 +58,6 @@ from scipy.linalg import null_space
 from feltool.walking.legged.contact import LeggedContact, pinv_psd
 from feltool.walking.legged.model import LeggedModel
 
-
 #: The weight of a link's internal forces [N] against the torques [N m] in the QP's cost (a
 #: choice among equally good distributions; 1e-6 left proxqp's problem too ill-conditioned to
 #: converge on Talos' soles)
