@@ -62,8 +62,8 @@ def check_release(contact: LeggedContact, q: np.ndarray, v: np.ndarray, tau: np.
 #: A foot reaching the ground slower than this [m/s] grazes it (a touchdown at rest)
 GRAZING = 1e-6
 
-#: A released foot leaves the ground within this [s] (else kind ``lift_off``), as on MuJoCo's
-#: floor (:data:`~feltool.walking.legged.mujoco_stand.LIFT_OFF_WINDOW`)
+#: A released foot leaves the ground within this [s] (else kind ``lift_off``), on the rigid
+#: plant and on MuJoCo's floor (:mod:`~feltool.walking.legged.mujoco_stand`)
 LIFT_OFF_WINDOW = 0.05
 
 

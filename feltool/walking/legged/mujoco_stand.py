@@ -50,12 +50,12 @@ from feltool.walking.checks import ContactChecks, NotWalking
 from feltool.walking.legged.checks import LeggedStats, check_torques
 from feltool.walking.legged.contact import LeggedContact
 from feltool.walking.legged.control import StandingController
+from feltool.walking.legged.events import LIFT_OFF_WINDOW
 from feltool.walking.legged.model import LeggedModel, Payload
 from feltool.walking.legged.mujoco_plant import LeggedMujoco
 from feltool.walking.legged.stand import Push, StandLog
 
 LIFT_OFF_HYSTERESIS = 0.0002  #: a foot point this high [m] has left the floor
-LIFT_OFF_WINDOW = 0.05        #: a released foot leaves the floor within this [s]
 MAX_DEPTH = 0.002             #: deepest a foot may sink into the floor [m]
 SLIP_TOL = 0.002              #: largest stance-foot travel [m] before it is sliding
 IMPACT_WINDOW = 0.01          #: a touchdown's soft impact lasts this [s]
