@@ -71,7 +71,7 @@ EXEMPT = {
                                                      "under a payload, minutes per seed "
                                                      "(tests/test_legged_config.py runs it "
                                                      "short from its config)",
-    "feltool run configs/legged/talos_walk.yaml": "10 seeds x 20 cycles of Talos walking, ~30 "
+    "feltool run configs/legged/talos_walk.yaml": "10 seeds x 24 cycles of Talos walking, ~45 "
                                                   "min (tests/test_legged_config.py runs it "
                                                   "short through the command)",
 }
