@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from feltool.walking.legged.contact import LeggedContact
+from feltool.walking.legged.control import StandingController
 from feltool.walking.legged.events import FLAT_TOL, flat_landing, lingering, tipping
 from feltool.walking.legged.model import load_talos_legs
 from feltool.walking.legged.stand import random_start, stand
@@ -82,7 +83,6 @@ def test_a_released_sole_that_would_press_stays_down_until_it_lifts(talos):
     tau = np.zeros(talos.nv)
     # hold the robot on its right sole (gravity compensation through it) and pull the left
     # knee up: the left corners accelerate up
-    from feltool.walking.legged.control import StandingController
     ctl = StandingController(talos, q, normal_force_min=5.0)
     u = ctl(q, v, right).u
     tau[6:] = u
@@ -100,7 +100,6 @@ def test_a_sole_whose_pressure_leaves_it_tips_onto_an_edge(talos):
     v = np.zeros(talos.nv)
     _, right = _soles(talos)
     contact = LeggedContact(talos)
-    from feltool.walking.legged.control import StandingController
     ctl = StandingController(talos, q, normal_force_min=5.0)
     tau = np.zeros(talos.nv)
     tau[6:] = ctl(q, v, right).u

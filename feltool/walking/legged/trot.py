@@ -323,19 +323,19 @@ class TrotController(StandingController):
         swing = sorted({i for foot in self.names if foot not in self._stance
                         for i in self.legged.leg(foot)})  # once per leg (a sole has 4 feet)
         out[swing] -= g.joints[0] * dq[swing]
-        base = pin.XYZQUATToSE3(q[:7])
-        goal = pin.XYZQUATToSE3(self.q_d[:7])
-        lin = base.rotation @ v[:3]
-        lin_d = goal.rotation @ self.v_d[:3]
         k, d = self.horizontal
         f = np.zeros(6)
-        f[:2] = k * (goal.translation[:2] - base.translation[:2]) + d * (lin_d[:2] - lin[:2])
         if self.gait.steer_com:  # the gait's motion is the centre of mass's: its error
             com = pin.centerOfMass(self.model, self.data, q, v)
             x, vx, _ = self.gait.base_x(self._t)
             y, vy = self.gait.lateral(self._t)
             f[:2] = k * (self.com_ref + [x, y] - com[:2]) + d * (np.array([vx, vy])
                                                                 - self.data.vcom[0][:2])
+        else:
+            base = pin.XYZQUATToSE3(q[:7])
+            goal = pin.XYZQUATToSE3(self.q_d[:7])
+            lin, lin_d = base.rotation @ v[:3], goal.rotation @ self.v_d[:3]
+            f[:2] = k * (goal.translation[:2] - base.translation[:2]) + d * (lin_d[:2] - lin[:2])
         pin.computeJointJacobians(self.model, self.data, q)
         Jb = pin.getJointJacobian(self.model, self.data, 1, pin.LOCAL_WORLD_ALIGNED)
         out += Jb.T @ f
