@@ -29,11 +29,15 @@ _UNALIGNED = {
 
 @dataclass(frozen=True)
 class Joint:
-    """One 1-DoF joint of the tree, as the algorithms below need it.
+    """One joint of the tree, as the algorithms below need it.
 
     ``kind`` is ``"revolute"``, ``"prismatic"`` or ``"unbounded"`` (revolute with ``(cos, sin)``
-    configuration); ``axis`` is the unit axis in the joint frame; ``idx_q``/``idx_v`` index the
-    joint's coordinates in ``q`` and ``v``; ``parent`` is the parent joint (0 = universe).
+    configuration), each with one degree of freedom, or ``"free_flyer"`` (a floating base:
+    ``q = (x, y, z, quaternion x, y, z, w)``, ``v`` the linear and angular velocity in the
+    joint's frame, as Pinocchio's ``JointModelFreeFlyer``); ``axis`` is the unit axis in the
+    joint frame (zero for a free flyer); ``idx_q``/``idx_v`` index the joint's first
+    coordinates in ``q`` and ``v``, ``nv`` its number of velocities; ``parent`` is the parent
+    joint (0 = universe).
     """
 
     index: int
@@ -46,6 +50,12 @@ class Joint:
     placement_R: np.ndarray
     placement_p: np.ndarray
     inertia: np.ndarray  # 6x6 spatial inertia of the body about the joint frame origin
+    nv: int = 1
+
+    @property
+    def v_slice(self) -> slice:
+        """The joint's velocities in ``v``."""
+        return slice(self.idx_v, self.idx_v + self.nv)
 
 
 def _unit_axis(k: int) -> np.ndarray:
@@ -54,14 +64,19 @@ def _unit_axis(k: int) -> np.ndarray:
     return axis
 
 
-def describe_joints(model: pin.Model) -> list[Joint]:
-    """The joints of ``model`` with their numbers, or :class:`InputError` for an unsupported one."""
+def describe_joints(model: pin.Model, floating: bool = False) -> list[Joint]:
+    """The joints of ``model`` with their numbers, or :class:`InputError` for an unsupported one
+    (a free flyer is supported only with ``floating``: the expressions of a floating base, not
+    the casadi dynamics backend of a fixed-base experiment)."""
     joints = []
     for i in range(1, model.njoints):
         jmodel = model.joints[i]
         shortname = jmodel.shortname()
         name = model.names[i]
-        if shortname in _REVOLUTE_ALIGNED:
+        nv = 1
+        if floating and shortname == "JointModelFreeFlyer":
+            kind, axis, nv = "free_flyer", np.zeros(3), 6
+        elif shortname in _REVOLUTE_ALIGNED:
             kind, axis = "revolute", _unit_axis(_REVOLUTE_ALIGNED[shortname])
         elif shortname in _PRISMATIC_ALIGNED:
             kind, axis = "prismatic", _unit_axis(_PRISMATIC_ALIGNED[shortname])
@@ -90,6 +105,7 @@ def describe_joints(model: pin.Model) -> list[Joint]:
                 placement_R=np.array(placement.rotation, dtype=float),
                 placement_p=np.array(placement.translation, dtype=float),
                 inertia=np.array(model.inertias[i].matrix(), dtype=float),
+                nv=nv,
             )
         )
     return joints
@@ -135,24 +151,43 @@ def _skew_np(p: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
 
 
+def quaternion_matrix(quat) -> ca.SX:
+    """The rotation of a quaternion ``(x, y, z, w)`` (Eigen's ``toRotationMatrix``, as Pinocchio
+    reads a free flyer's configuration: the same operations, no normalisation)."""
+    x, y, z, w = quat[0], quat[1], quat[2], quat[3]
+    tx, ty, tz = 2 * x, 2 * y, 2 * z
+    twx, twy, twz = tx * w, ty * w, tz * w
+    txx, txy, txz = tx * x, ty * x, tz * x
+    tyy, tyz, tzz = ty * y, tz * y, tz * z
+    return ca.vertcat(ca.horzcat(1 - (tyy + tzz), txy - twz, txz + twy),
+                      ca.horzcat(txy + twz, 1 - (txx + tzz), tyz - twx),
+                      ca.horzcat(txz - twy, tyz + twx, 1 - (txx + tyy)))
+
+
+def joint_placement(joint: Joint, q) -> tuple:
+    """``liMi = placement * M_J(q)`` of a joint relative to its parent, as ``(R, p)`` (3x3
+    rotation, position in [m])."""
+    R0 = dm(joint.placement_R)
+    p0 = dm(joint.placement_p)
+    qi = q[joint.idx_q]
+    if joint.kind == "free_flyer":
+        return (ca.mtimes(R0, quaternion_matrix(q[joint.idx_q + 3:joint.idx_q + 7])),
+                p0 + ca.mtimes(R0, q[joint.idx_q:joint.idx_q + 3]))
+    if joint.kind == "prismatic":
+        return ca.SX(R0), p0 + ca.mtimes(R0, dm(joint.axis)) * qi
+    if joint.kind == "revolute":
+        c, s = ca.cos(qi), ca.sin(qi)
+    else:  # unbounded: q = (cos th, sin th), used as is (as Pinocchio does)
+        c, s = q[joint.idx_q], q[joint.idx_q + 1]
+    return ca.mtimes(R0, joint_rotation(joint, c, s)), ca.SX(p0)
+
+
 def joint_transform(joint: Joint, q) -> ca.SX:
     """``X_i`` (6x6): maps a spatial motion from the parent's frame to joint ``i``'s frame.
 
     With ``liMi = (R, p) = placement * M_J(q)``, ``X_i = [[R^T, -R^T [p]x], [0, R^T]]``.
     """
-    R0 = dm(joint.placement_R)
-    p0 = dm(joint.placement_p)
-    qi = q[joint.idx_q]
-    if joint.kind == "prismatic":
-        R = R0
-        p = p0 + ca.mtimes(R0, dm(joint.axis)) * qi
-    else:
-        if joint.kind == "revolute":
-            c, s = ca.cos(qi), ca.sin(qi)
-        else:  # unbounded: q = (cos th, sin th), used as is (as Pinocchio does)
-            c, s = q[joint.idx_q], q[joint.idx_q + 1]
-        R = ca.mtimes(R0, joint_rotation(joint, c, s))
-        p = p0
+    R, p = joint_placement(joint, q)
     Rt = R.T
     zero = ca.SX(3, 3)
     return ca.vertcat(
@@ -162,10 +197,28 @@ def joint_transform(joint: Joint, q) -> ca.SX:
 
 
 def motion_subspace(joint: Joint) -> ca.DM:
-    """``S`` (6x1): ``(0, u)`` for revolute joints, ``(u, 0)`` for prismatic ones."""
+    """``S`` (6 x nv): ``(0, u)`` for revolute joints, ``(u, 0)`` for prismatic ones, the
+    identity for a free flyer (its velocity is the body's, in its own frame)."""
+    if joint.kind == "free_flyer":
+        return ca.DM.eye(6)
     if joint.kind == "prismatic":
         return dm(np.concatenate([joint.axis, np.zeros(3)]))
     return dm(np.concatenate([np.zeros(3), joint.axis]))
+
+
+def subspace_times(joint: Joint, x):
+    """``S x_J``: the spatial motion of the joint's coordinates ``x_J`` of a vector ``x``
+    (nv: velocities or accelerations)."""
+    if joint.nv == 1:
+        return motion_subspace(joint) * x[joint.idx_v]
+    return ca.mtimes(motion_subspace(joint), x[joint.v_slice])
+
+
+def subspace_project(joint: Joint, f):
+    """``S^T f`` (nv_J): a spatial force's generalized force on the joint's coordinates."""
+    if joint.nv == 1:
+        return ca.dot(motion_subspace(joint), f)
+    return ca.mtimes(motion_subspace(joint).T, f)
 
 
 def cross_motion(m, x):

@@ -16,10 +16,13 @@ from feltool.dynamics.spatial import (
     describe_joints,
     dm,
     gravity_acceleration,
-    joint_rotation,
+    joint_placement,
+    quaternion_matrix,
     joint_transform,
     motion_subspace,
     skew,
+    subspace_project,
+    subspace_times,
 )
 from feltool.errors import InputError
 
@@ -32,7 +35,7 @@ def _velocity_pass(model: pin.Model, joints: list[Joint], q, v):
     for jt in joints:
         i = jt.index
         xforms[i] = joint_transform(jt, q)
-        vJ = motion_subspace(jt) * v[jt.idx_v]
+        vJ = subspace_times(jt, v)
         vel[i] = ca.mtimes(xforms[i], vel[jt.parent]) + vJ
         bias[i] = cross_motion(vel[i], vJ)
     return xforms, vel, bias
@@ -65,17 +68,17 @@ def _rnea_expr(model: pin.Model, joints: list[Joint], q, v, a, pi=None, gravity=
     acc = [a0] + [None] * (nj - 1)
     force = [None] * nj
     for jt in joints:
-        i, S = jt.index, motion_subspace(jt)
-        acc[i] = ca.mtimes(xforms[i], acc[jt.parent]) + S * a[jt.idx_v] + bias[i]
+        i = jt.index
+        acc[i] = ca.mtimes(xforms[i], acc[jt.parent]) + subspace_times(jt, a) + bias[i]
         inertia = dm(jt.inertia) if pi is None else _spatial_inertia(pi[10 * (i - 1):10 * i])
         force[i] = ca.mtimes(inertia, acc[i]) + cross_force(vel[i], ca.mtimes(inertia, vel[i]))
-    tau = [None] * model.nv
+    tau = {}
     for jt in reversed(joints):
         i = jt.index
-        tau[jt.idx_v] = ca.dot(motion_subspace(jt), force[i])
+        tau[i] = subspace_project(jt, force[i])
         if jt.parent > 0:
             force[jt.parent] = force[jt.parent] + ca.mtimes(xforms[i].T, force[i])
-    tau = ca.vertcat(*tau)
+    tau = ca.vertcat(*(tau[jt.index] for jt in sorted(joints, key=lambda jt: jt.idx_v)))
     armature = np.asarray(model.armature, dtype=float)
     if np.any(armature != 0.0):
         tau = tau + dm(armature) * a
@@ -91,8 +94,10 @@ def _aba_expr(model: pin.Model, joints: list[Joint], q, v, tau):
     ``X^T (I^A - U U^T / D) X`` and ``X^T (p^A + I^a c + U u / D)``. Pass 3 (root to leaves):
     ``a'_i = X_i a_p + c_i`` (``a_0 = -g``), ``qdd_i = (u - U^T a'_i) / D``,
     ``a_i = a'_i + S qdd_i``.
-    Every joint here has one degree of freedom, so ``D`` is a scalar and no matrix is inverted.
+    Every joint here has one degree of freedom, so ``D`` is a scalar and no matrix is inverted
+    (a floating base is refused: its dynamics under contacts are the KKT on ``M``).
     """
+    _one_dof(joints, "the articulated-body algorithm")
     nj = model.njoints
     armature = np.asarray(model.armature, dtype=float)
     xforms, vel, bias = _velocity_pass(model, joints, q, v)
@@ -125,15 +130,31 @@ def _aba_expr(model: pin.Model, joints: list[Joint], q, v, tau):
     return ca.vertcat(*qdd)
 
 
+def _one_dof(joints: list[Joint], what: str) -> None:
+    multi = [jt.name for jt in joints if jt.nv != 1]
+    if multi:
+        raise InputError(f"{what} is built for 1-DoF joints; joint '{multi[0]}' is a "
+                         "floating base")
+
+
 def _tangent_jacobian(model: pin.Model, joints: list[Joint], q) -> ca.SX:
     """``dq/d(delta)`` (nq x nv) of ``integrate(q, delta)`` at ``delta = 0``.
 
     Identity rows for revolute/prismatic joints; ``(-sin th, cos th) = (-q_1, q_0)`` for a
-    continuous joint, whose configuration ``(cos th, sin th)`` turns by ``delta``.
+    continuous joint, whose configuration ``(cos th, sin th)`` turns by ``delta``; for a free
+    flyer (``M exp6(delta)``) its rotation ``R`` on the position and
+    ``(1/2)(w I + [u]x ; -u^T)`` of the quaternion ``(u, w)`` on its angular rates.
     """
     J = ca.SX(model.nq, model.nv)
     for jt in joints:
-        if jt.kind == "unbounded":
+        if jt.kind == "free_flyer":
+            iq, iv = jt.idx_q, jt.idx_v
+            quat = q[iq + 3:iq + 7]
+            u, w = quat[:3], quat[3]
+            J[iq:iq + 3, iv:iv + 3] = quaternion_matrix(quat)
+            J[iq + 3:iq + 6, iv + 3:iv + 6] = 0.5 * (w * ca.SX.eye(3) + skew(u))
+            J[iq + 6, iv + 3:iv + 6] = -0.5 * u.T
+        elif jt.kind == "unbounded":
             J[jt.idx_q, jt.idx_v] = -q[jt.idx_q + 1]
             J[jt.idx_q + 1, jt.idx_v] = q[jt.idx_q]
         else:
@@ -157,7 +178,7 @@ def symbolic_rnea(model: pin.Model) -> ca.Function:
     ``tau = M(q) a + C(q, v) v + g(q)`` computed by the recursive Newton-Euler algorithm.
     """
     check_has_joints(model)
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q, v, a = _symbols(model, "a")
     tau = _rnea_expr(model, joints, q, v, a)
     return ca.Function("rnea", [q, v, a], [ca.densify(tau)], ["q", "v", "a"], ["tau"])
@@ -171,7 +192,7 @@ def symbolic_rnea_gravity(model: pin.Model, parametric: bool = False) -> ca.Func
     if parametric:
         return symbolic_rnea_world(model)
     check_has_joints(model)
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q, v, a = _symbols(model, "a")
     g = ca.SX.sym("g", 3)
     tau = _rnea_expr(model, joints, q, v, a, None, g)
@@ -185,7 +206,7 @@ def symbolic_rnea_parametric(model: pin.Model) -> ca.Function:
     [kg m^2]) as an input. ``tau`` is linear in ``pi``; its Jacobian by ``pi`` is the joint
     torque regressor (Pinocchio's ``computeJointTorqueRegressor``)."""
     check_has_joints(model)
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q, v, a = _symbols(model, "a")
     pi = ca.SX.sym("pi", 10 * (model.njoints - 1))
     tau = _rnea_expr(model, joints, q, v, a, pi)
@@ -199,7 +220,7 @@ def symbolic_rnea_world(model: pin.Model) -> ca.Function:
     [m/s^2], e.g. ``(0, 0, -9.81)``) as inputs: one expression for every world of the same
     joints (a payload, changed masses, a slope)."""
     check_has_joints(model)
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q, v, a = _symbols(model, "a")
     pi, g = ca.SX.sym("pi", 10 * (model.njoints - 1)), ca.SX.sym("g", 3)
     tau = _rnea_expr(model, joints, q, v, a, pi, g)
@@ -219,7 +240,7 @@ def symbolic_aba(model: pin.Model) -> ca.Function:
     numbers agree to rounding error.
     """
     check_has_joints(model)
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q, v, tau = _symbols(model, "tau")
     acc = _aba_expr(model, joints, q, v, tau)
     return ca.Function("aba", [q, v, tau], [ca.densify(acc)], ["q", "v", "tau"], ["a"])
@@ -234,7 +255,7 @@ def symbolic_rnea_derivatives(model: pin.Model) -> ca.Function:
     (plus the armature on its diagonal).
     """
     check_has_joints(model)
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q, v, a = _symbols(model, "a")
     tau = _rnea_expr(model, joints, q, v, a)
     dtau_dq = ca.mtimes(ca.jacobian(tau, q), _tangent_jacobian(model, joints, q))
@@ -254,16 +275,7 @@ def _placements_expr(model: pin.Model, joints: list[Joint], q) -> list:
     ``(R, p)`` pairs of SX (3x3 rotation, 3-vector position in [m]); index 0 is the world."""
     placements = [(ca.SX(ca.DM.eye(3)), ca.SX.zeros(3))] + [None] * (model.njoints - 1)
     for jt in joints:
-        R0, p0 = dm(jt.placement_R), dm(jt.placement_p)
-        qi = q[jt.idx_q]
-        if jt.kind == "prismatic":
-            R, p = ca.SX(R0), p0 + ca.mtimes(R0, dm(jt.axis)) * qi
-        else:
-            if jt.kind == "revolute":
-                c, s = ca.cos(qi), ca.sin(qi)
-            else:
-                c, s = q[jt.idx_q], q[jt.idx_q + 1]
-            R, p = ca.mtimes(R0, joint_rotation(jt, c, s)), ca.SX(p0)
+        R, p = joint_placement(jt, q)
         R_parent, p_parent = placements[jt.parent]
         placements[jt.index] = (ca.mtimes(R_parent, R), p_parent + ca.mtimes(R_parent, p))
     return placements
@@ -290,7 +302,7 @@ def symbolic_frame_kinematics(model: pin.Model, frame_id: int) -> ca.Function:
     if not 0 <= frame_id < model.nframes:
         raise InputError(f"frame id {frame_id} is not a frame of the model (it has "
                          f"{model.nframes})")
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q, v, a = _symbols(model, "a")
     p = _frame_position_expr(model, joints, q, frame_id)
     tangent = _tangent_jacobian(model, joints, q)
@@ -306,7 +318,7 @@ def symbolic_frame_rotation(model: pin.Model, frame_id: int) -> ca.Function:
     """``q -> R``: the orientation of a frame in the world (3x3, Pinocchio's
     ``data.oMf[frame_id].rotation``), symbolically."""
     check_has_joints(model)
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q = ca.SX.sym("q", model.nq)
     frame = model.frames[frame_id]
     R, _ = _placements_expr(model, joints, q)[frame.parentJoint]
@@ -318,7 +330,7 @@ def symbolic_center_of_mass(model: pin.Model) -> ca.Function:
     """``(q, v) -> (c, dc)``: the centre of mass in the world [m] (``pin.centerOfMass``) and its
     velocity [m/s], symbolically."""
     check_has_joints(model)
-    joints = describe_joints(model)
+    joints = describe_joints(model, floating=True)
     q, v = ca.SX.sym("q", model.nq), ca.SX.sym("v", model.nv)
     placements = _placements_expr(model, joints, q)
     total = sum(float(model.inertias[jt.index].mass) for jt in joints)
@@ -333,3 +345,69 @@ def symbolic_center_of_mass(model: pin.Model) -> ca.Function:
     dc = ca.mtimes(ca.mtimes(ca.jacobian(c, q), _tangent_jacobian(model, joints, q)), v)
     return ca.Function("center_of_mass", [q, v], [ca.densify(c), ca.densify(dc)],
                        ["q", "v"], ["c", "dc"])
+
+
+def _first_order_normalize(x):
+    """Pinocchio's ``firstOrderNormalize``: ``x (3 - |x|^2) / 2``, the unit vector to first
+    order for an ``x`` near unit length."""
+    return x * (3 - ca.sumsqr(x)) / 2
+
+
+#: Below this squared angle [rad^2] the exponential maps use their Taylor series (whose next
+#: term is then below 1e-18)
+_SMALL_ANGLE2 = 1e-6
+
+
+def _se3_exp_parts(w):
+    """For an angular displacement ``w`` (3) [rad]: ``(sin(t/2)/t, cos(t/2), a, b)`` with
+    ``t = |w|``, ``a = (1 - cos t)/t^2``, ``b = (t - sin t)/t^3`` (``exp6``'s translation is
+    ``(I + a [w]x + b [w]x^2) v``), by their Taylor series near ``t = 0``."""
+    t2 = ca.sumsqr(w)
+    small = t2 < _SMALL_ANGLE2
+    t = ca.sqrt(ca.if_else(small, 1.0, t2))
+    half_sin = ca.if_else(small, 0.5 - t2 / 48 + t2 ** 2 / 3840, ca.sin(t / 2) / t)
+    a = ca.if_else(small, 0.5 - t2 / 24 + t2 ** 2 / 720, (1 - ca.cos(t)) / t2)
+    b = ca.if_else(small, 1 / 6 - t2 / 120 + t2 ** 2 / 5040, (t - ca.sin(t)) / (t2 * t))
+    return half_sin, ca.cos(ca.sqrt(t2) / 2), a, b
+
+
+def _integrate_expr(joints: list[Joint], q, dv):
+    """``integrate(q, dv)`` of every joint (Pinocchio's ``pin.integrate``): ``q + dv`` for a
+    revolute or prismatic joint; a continuous one's ``(cos, sin)`` turned by ``dv`` and
+    normalised to first order; a free flyer moved by ``M exp6(dv)``, its quaternion multiplied
+    by ``exp(dv_w)``'s (the sign on the side of ``q``'s) and normalised to first order."""
+    out = [q[k] for k in range(q.shape[0])]
+    for jt in joints:
+        iq, iv = jt.idx_q, jt.idx_v
+        if jt.kind == "free_flyer":
+            vl, w = dv[iv:iv + 3], dv[iv + 3:iv + 6]
+            quat = q[iq + 3:iq + 7]
+            half_sin, half_cos, a, b = _se3_exp_parts(w)
+            W = skew(w)
+            step = vl + a * ca.mtimes(W, vl) + b * ca.mtimes(W, ca.mtimes(W, vl))
+            p = q[iq:iq + 3] + ca.mtimes(quaternion_matrix(quat), step)
+            u, s = quat[:3], quat[3]
+            eu, es = half_sin * w, half_cos
+            qu = s * eu + es * u + ca.cross(u, eu)
+            qs = s * es - ca.dot(u, eu)
+            new = ca.vertcat(qu, qs)
+            new = _first_order_normalize(ca.if_else(ca.dot(new, quat) < 0, -new, new))
+            out[iq:iq + 7] = [p[0], p[1], p[2], new[0], new[1], new[2], new[3]]
+        elif jt.kind == "unbounded":
+            c, s = q[iq], q[iq + 1]
+            cw, sw = ca.cos(dv[iv]), ca.sin(dv[iv])
+            new = _first_order_normalize(ca.vertcat(cw * c - sw * s, sw * c + cw * s))
+            out[iq:iq + 2] = [new[0], new[1]]
+        else:
+            out[iq] = q[iq] + dv[iv]
+    return ca.vertcat(*out)
+
+
+def symbolic_integrate(model: pin.Model) -> ca.Function:
+    """``(q, dv) -> q'``: the configuration ``q`` moved by the tangent displacement ``dv`` (nv),
+    Pinocchio's ``pin.integrate``, symbolically (any of the joints above and a free flyer)."""
+    check_has_joints(model)
+    joints = describe_joints(model, floating=True)
+    q, dv = ca.SX.sym("q", model.nq), ca.SX.sym("dv", model.nv)
+    return ca.Function("integrate", [q, dv], [_integrate_expr(joints, q, dv)], ["q", "dv"],
+                       ["q_next"])
