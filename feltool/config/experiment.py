@@ -24,7 +24,7 @@ from feltool.config.base import Gravity, PositiveFloat, Strict, once_each
 from feltool.config.disturbances import DisturbanceConfig
 from feltool.config.events import EventConfig
 from feltool.config.joints import JointConfig
-from feltool.config.learning import ILCConfig, LearningConfig
+from feltool.config.learning import FEL_UPDATES, ILCConfig, LearningConfig
 from feltool.config.plant import PlantConfig
 from feltool.config.primitives import PrimitiveConfig
 from feltool.config.sim import SimConfig
@@ -196,7 +196,7 @@ class ExperimentConfig(Strict):
             (self.walking is not None or self.actuation is not None, "a walker"),
             (L.model is not None, "model learning"),
             (self.disturbances is not None, "disturbances"),
-            (L.update not in ("gradient", "gauss_newton"), f"update: {L.update}"),
+            (L.update not in FEL_UPDATES, f"update: {L.update}"),
             (L.step != "per_cycle", "learning.step: per_step"),
             (self.primitives.phase == "adaptive", "the adaptive phase"),
         ) if bad]

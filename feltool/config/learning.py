@@ -18,6 +18,12 @@ from feltool.bounds import (
 )
 from feltool.config.base import NonNegFloat, PositiveFloat, Strict
 
+#: ``learning.update`` values feedback error learning runs (eq. 3.6,
+#: :class:`feltool.learning.fel.FeedbackErrorLearner`); the others (ILC, the feedback-only
+#: baseline) have their own cycle runner (:mod:`feltool.learning.ilc`). Here, in the schema's
+#: layer, so that the config's own checks and the learners read the same names.
+FEL_UPDATES = ("gradient", "gauss_newton")
+
 
 class ModelLearningConfig(Strict):
     """Classic (Kawato) feedback error learning of an inverse-model correction (eq. 2.8, 3.4):

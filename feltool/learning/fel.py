@@ -27,16 +27,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# FEL_UPDATES: the learning.update values this learner runs, defined with the schema (the
+# config's checks read them too), the name kept here for the learner's users
+from feltool.config.learning import FEL_UPDATES as FEL_UPDATES
 from feltool.control.cycle import fel_sums, fel_update, goal_step_scale
 from feltool.control.ops import NUMPY
 from feltool.dynamics.interface import Dynamics
 from feltool.learning.loop_map import apply_q, error_sensitivity, feedback_gains, q_filter, transient_error
 from feltool.motion.phase import PhaseSamples
 from feltool.motion.rmp import PrimitiveSet
-
-#: ``learning.update`` values this learner runs (eq. 3.6); the others (ILC, the feedback-only
-#: baseline) have their own cycle runner (:mod:`feltool.learning.ilc`).
-FEL_UPDATES = ("gradient", "gauss_newton")
 
 
 @dataclass
