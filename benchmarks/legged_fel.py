@@ -19,9 +19,13 @@ With ``--robot talos``: Talos' legs walking (feltool.walking.legged.walk: two so
 corners, the centre of mass swaying as the inverted pendulum's orbit, the URDF's 100-300 N m
 motors), each cycle two steps.
 
+With ``--slope ANGLE[,ROLL]`` (in [rad]) the unknown world is (also) a ground inclined from the
+change's cycle on (feltool.walking.legged.model.sloped: positive ANGLE downhill ahead, ROLL
+downhill to the left); ``--payload 0`` for the slope alone.
+
 Usage: ``python benchmarks/legged_fel.py [--robot solo12|talos] [--cycles 150] [--seeds 0-9]
-[--payload 0.2] [--change 3] [--no-learning] [--harmonics 0] [--acquire 4]
-[--plant pinocchio|mujoco]``
+[--payload 0.2] [--slope ANGLE[,ROLL]] [--change 3] [--no-learning] [--harmonics 0]
+[--acquire 4] [--plant pinocchio|mujoco]``
 """
 
 from __future__ import annotations
@@ -53,7 +57,9 @@ def main() -> None:
     ap.add_argument("--cycles", type=int, default=150)
     ap.add_argument("--seeds", type=seeds, default=seeds("0-9"))
     ap.add_argument("--payload", type=float, default=0.2, help="fraction of the robot's mass")
-    ap.add_argument("--change", type=int, default=3, help="the cycle the payload is put on")
+    ap.add_argument("--slope", type=lambda x: tuple(float(a) for a in (x + ",0").split(",")[:2]),
+                    default=None, help="ANGLE[,ROLL] of the ground in [rad] from the change on")
+    ap.add_argument("--change", type=int, default=3, help="the cycle the world changes")
     ap.add_argument("--no-learning", action="store_true")
     ap.add_argument("--harmonics", type=int, default=0,
                     help="highest harmonic M of the learned feedforward (0: the cycle's mean)")
@@ -81,7 +87,9 @@ def main() -> None:
         print(f"reference acquired on the known model in {args.acquire} rounds "
               f"({time.perf_counter() - t0:.0f} s): summed feedback per round "
               + ", ".join(f"{f:.4f}" for f in acq.feedback) + " N m")
-    print(f"{robot.name} ({robot.mass:.3f} kg), payload {args.payload:.0%} from cycle {args.change}, "
+    slope = "" if args.slope is None else f", slope {args.slope[0]:g}, {args.slope[1]:g} rad"
+    print(f"{robot.name} ({robot.mass:.3f} kg), payload {args.payload:.0%}{slope} from cycle "
+          f"{args.change}, "
           f"{args.cycles} cycles, learning {'off' if args.no_learning else 'on'} "
           f"(M = {args.harmonics}), "
           f"plant {args.plant}")
@@ -93,6 +101,7 @@ def main() -> None:
         t0 = time.perf_counter()
         run = learn_trot(robot, cycles=args.cycles, payload=args.payload, change=args.change,
                          seed=seed, learn=not args.no_learning, plant=args.plant,
+                         slope=args.slope,
                          correction=correction, acquire=0, gait=gait, controller=extra,
                          impact_window=window,
                          feedforward=PhaseFeedforward(args.harmonics, robot.nv))

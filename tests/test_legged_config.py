@@ -82,7 +82,7 @@ def test_a_short_run_writes_its_directory_and_the_feedback_falls_after_the_chang
         assert s["stats"]["torque_hits"] == 0 and s["stats"]["max_torque"] <= 2.7
     with open(out / "metrics.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 16 and {"fb_total", "fb_share_FL_HAA", "payload"} <= set(rows[0])
+    assert len(rows) == 16 and {"fb_total", "fb_share_FL_HAA", "changed"} <= set(rows[0])
     fb0 = [float(r["fb_total"]) for r in rows if r["seed"] == "0"]
     assert fb0[2] == pytest.approx(summary["seeds"][0]["fb_change"])
     assert fb0[3] > fb0[4] > fb0[5] > fb0[6]  # falling after the change
@@ -97,6 +97,29 @@ def test_a_short_run_writes_its_directory_and_the_feedback_falls_after_the_chang
     _check_rollout_html(out)
 
 
+def test_a_slope_from_the_config_reaches_the_plant_and_the_run_says_so(tmp_path, capsys):
+    """The shipped slope config checks; a short run of it (1 seed x 6 cycles, the slope from
+    cycle 2, no payload) through the command: the summary names the world, the metrics mark
+    the cycles after the change, and the slope's feedback arrives at the change and falls."""
+    slope = CONFIGS / "legged" / "solo12_slope.yaml"
+    assert main(["check", str(slope)]) == 0
+    assert "slope 0.1 rad uphill ahead from cycle 3" in capsys.readouterr().out
+    out = tmp_path / "run"
+    path = _config(tmp_path, "slope.yaml", slope, slope__cycle=2, walking__acquire=1,
+                   success__fb_ratio_max=None)
+    proc = feltool("run", str(path), "--seeds", "0", "--cycles", "6", "--out", str(out),
+                   "--no-progress")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "slope 0.1 rad uphill ahead from cycle 2" in proc.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["world"] == "slope 0.1 rad uphill ahead" and summary["change_cycle"] == 2
+    s = summary["seeds"][0]
+    assert s["walked"] and s["fb_change"] > 5.0 * s["fb_before_change"]
+    assert s["fb_last"] < 0.5 * s["fb_change"]
+    with open(out / "metrics.csv") as fh:
+        assert [int(r["changed"]) for r in csv.DictReader(fh)] == [0, 0, 1, 1, 1, 1]
+
+
 def _check_rollout_html(out: Path) -> None:
     """rollout.html draws Solo-12's meshes (every visual of example-robot-data's model) and
     moves them along seed 0's recorded trot: the base goes forward at the trot's speed."""
@@ -105,7 +128,7 @@ def _check_rollout_html(out: Path) -> None:
     from .test_viewer import _commands
 
     page = (out / "rollout.html").read_text(encoding="utf-8")
-    assert "payload on (cycle 2)" in page and "last cycles" in page
+    assert "world changes (cycle 2)" in page and "last cycles" in page
     cmds = _commands(page)
     visuals = erd.load("solo12").visual_model.geometryObjects
     objects = [c["path"] for c in cmds if c["type"] == "set_object"]
@@ -159,7 +182,11 @@ BAD = [
     ({"effort": -1}, "effort:"),
     ({"payload__fraction": 0}, "payload.fraction:"),
     ({"payload__cycle": 0}, "payload.cycle:"),
-    ({"payload": None}, "success.ratio_from: change needs a payload"),
+    ({"payload": None}, "success.ratio_from: change needs a change of the world"),
+    ({"slope": {"angle": 0.1, "cycle": 4}}, "slope.cycle: the world changes once"),
+    ({"slope": {"angle": 1.2, "cycle": 3}}, "slope.angle:"),
+    ({"slope": {"angle": 0.1, "roll": "steep", "cycle": 3}}, "slope.roll:"),
+    ({"slope": {"roll": 0.1, "cycle": 3}}, "slope.angle: required"),
     ({"plant__simulator": "bullet"}, "plant.simulator:"),
     ({"sim__cycles": True}, "sim.cycles: a boolean"),
     ({"sim__rate_hz": 10}, "sim.rate_hz:"),

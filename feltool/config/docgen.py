@@ -6,6 +6,7 @@ drift from the code.
 
 from __future__ import annotations
 
+import inspect
 import sys
 import typing
 
@@ -98,7 +99,7 @@ def render() -> str:
     for model in arms + legged:
         if model is LeggedExperimentConfig:
             parts.append(LEGGED)
-        parts.append(f"## {model.__name__}\n\n{(model.__doc__ or '').strip()}\n\n")
+        parts.append(f"## {model.__name__}\n\n{inspect.cleandoc(model.__doc__ or '')}\n\n")
         parts.append("| field | type | default | description |\n|---|---|---|---|\n")
         for name, field in model.model_fields.items():
             desc = (field.description or "").replace("|", "\\|")

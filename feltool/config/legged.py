@@ -147,6 +147,25 @@ class LeggedPayloadConfig(Strict):
                        "(cycles numbered from 0, so at least one cycle runs without it).")
 
 
+#: The steepest slope a legged config may ask for, in [rad] (45 degrees)
+MAX_SLOPE = 0.785
+
+
+class LeggedSlopeConfig(Strict):
+    """The unknown world: the ground inclined from the start of a cycle on (the plant's gravity
+    turned, feltool/walking/legged/model.py ``sloped``), which the controller's model does not
+    know: it keeps the base level with the ground and its gravity vertical to it."""
+
+    angle: Annotated[float, Field(ge=-MAX_SLOPE, le=MAX_SLOPE, allow_inf_nan=False)] = Field(
+        description="Inclination in [rad] about the ground's y axis; positive: downhill ahead "
+        "(gravity towards +x, as the fixed-base experiments' slope event), negative: uphill.")
+    roll: Annotated[float, Field(ge=-MAX_SLOPE, le=MAX_SLOPE, allow_inf_nan=False)] = Field(
+        0.0, description="Inclination in [rad] about the ground's x axis; positive: downhill to "
+        "the left (gravity towards +y).")
+    cycle: int = Field(ge=1, le=MAX_CYCLES, description="The cycle at whose start the ground "
+                       "tilts (with a payload: the payload's cycle, one change of the world).")
+
+
 class LeggedLearningConfig(Strict):
     """FEL of the trot's feedforward: a Fourier series in the gait's phase per generalized
     coordinate, moved each cycle towards the feedback that moves the robot
@@ -182,6 +201,8 @@ class LeggedExperimentConfig(Strict):
                                      description="What simulates the robot.")
     payload: LeggedPayloadConfig | None = Field(None, description="The unknown world; default "
                                                 "none.")
+    slope: LeggedSlopeConfig | None = Field(None, description="The unknown world (also, or "
+                                            "instead of the payload): a slope; default none.")
     learning: LeggedLearningConfig = Field(default_factory=LeggedLearningConfig,
                                            description="Feedback error learning.")
     seeds: Annotated[int, Field(ge=1, le=MAX_SEEDS)] | Annotated[
@@ -225,9 +246,7 @@ class LeggedExperimentConfig(Strict):
         if self.robot not in NAMED_ROBOTS and feet is None:
             out.append(("walking.feet", "required for a URDF robot: FL, FR, HL, HR, each "
                                         "{frame: NAME} or {link: NAME, offset: [x, y, z]}"))
-        if self.success.ratio_from == "change" and self.payload is None:
-            out.append(("success.ratio_from", "change needs a payload (payload: {fraction: "
-                                              "..., cycle: ...})"))
+        out += self._world_problems()
         if self.plant.simulator == "mujoco" and "impact_window_s" in self.sim.model_fields_set:
             out.append(("sim.impact_window_s", "the rigid plant's impact window; MuJoCo's soft "
                                                "contacts have none (plant.simulator: mujoco)"))
@@ -258,13 +277,32 @@ class LeggedExperimentConfig(Strict):
         elif self.robot not in NAMED_ROBOTS:
             out.append(("walking.feet", "required for a URDF robot: each sole's corners, "
                                         "{link: NAME, offset: [x, y, z]}"))
-        if self.success.ratio_from == "change" and self.payload is None:
-            out.append(("success.ratio_from", "change needs a payload (payload: {fraction: "
-                                              "..., cycle: ...})"))
+        out += self._world_problems()
         if self.plant.simulator == "mujoco":
             out.append(("plant.simulator", "a biped's walk runs on the pinocchio plant (its "
                                            "soles' corners are not MuJoCo's contacts yet)"))
         return out
+
+    def _world_problems(self) -> list[tuple[str, str]]:
+        """The unknown world changes once (a payload and a slope together at one cycle); the
+        feedback ratio from the change needs one."""
+        out = []
+        if self.payload is not None and self.slope is not None and \
+                self.slope.cycle != self.payload.cycle:
+            out.append(("slope.cycle", f"the world changes once: the slope's cycle "
+                                       f"{self.slope.cycle} is not the payload's "
+                                       f"{self.payload.cycle} (payload.cycle)"))
+        if self.success.ratio_from == "change" and self.change_cycle is None:
+            out.append(("success.ratio_from", "change needs a change of the world (payload: "
+                                              "{fraction: ..., cycle: ...} or slope: {angle: "
+                                              "..., cycle: ...})"))
+        return out
+
+    @property
+    def change_cycle(self) -> int | None:
+        """The cycle at whose start the unknown world arrives (payload and/or slope), or None."""
+        world = self.payload or self.slope
+        return None if world is None else world.cycle
 
     @property
     def seed_list(self) -> list[int]:

@@ -7,7 +7,7 @@
     run.json             inputs and state (feltool.runs.runstate); not resumable yet
     metrics.csv          one row per (seed, cycle): fb_total (the summed feedback [N m]),
                          fb_share_<motor> (each motor's RMS feedback share [N m]), t_start_s,
-                         t_end_s, payload (1 once the payload is on)
+                         t_end_s, changed (1 once the unknown world, payload or slope, is on)
     summary.json         per seed: walked, not_walking, cycles, fb before / at the change,
                          first, last, ratios, speed, contact statistics; the run's verdict
     params/seed-N.npz    the learned Fourier coefficients C (2M+1, nv), the coordinates'
@@ -97,11 +97,25 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
         raise ConfigError(exc.problems, source) from None
 
 
+def world(cfg: LeggedExperimentConfig, legged) -> str:
+    """The unknown world in words: ``payload 20% of 2.5 kg``, ``slope 0.1 rad uphill ahead``,
+    both, or ``no change of the world``."""
+    p, s = cfg.payload, cfg.slope
+    parts = [] if p is None else [f"payload {p.fraction:.0%} of {legged.mass:.3g} kg"]
+    if s is not None:
+        tilt = [f"{abs(a):g} rad {word}" for a, word in
+                ((s.angle, "downhill ahead" if s.angle > 0 else "uphill ahead"),
+                 (s.roll, "downhill to the left" if s.roll > 0 else "downhill to the right"))
+                if a != 0.0]
+        parts.append("slope " + (", ".join(tilt) or "0 rad"))
+    return " and ".join(parts) or "no change of the world"
+
+
 def describe(cfg: LeggedExperimentConfig, legged) -> str:
-    """One line: the robot, gait, plant, payload and seeds (``feltool check``)."""
-    g, p = cfg.walking.walk or cfg.walking.gait, cfg.payload
-    load = "no payload" if p is None else \
-        f"payload {p.fraction:.0%} of {legged.mass:.3g} kg from cycle {p.cycle}"
+    """One line: the robot, gait, plant, unknown world and seeds (``feltool check``)."""
+    g = cfg.walking.walk or cfg.walking.gait
+    load = world(cfg, legged) + ("" if cfg.change_cycle is None else
+                                 f" from cycle {cfg.change_cycle}")
     return (f"robot {legged.name} ({legged.mass:.3g} kg, {legged.nv - 6} motors, limit "
             f"{float(np.max(legged.effort)):g} N m, feet {', '.join(legged.feet)}), "
             f"{'walk' if cfg.walking.walk else 'trot'} "
@@ -145,11 +159,13 @@ def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int,
     its metrics rows, params and summary entry."""
     from feltool.walking.legged.learn import PhaseFeedforward, learn_trot
 
-    L, p = cfg.learning, cfg.payload
+    L, p, change = cfg.learning, cfg.payload, cfg.change_cycle
     gait, extra = gait_and_controller(cfg, legged)
     t0 = time.perf_counter()
-    run = learn_trot(legged, cycles=cycles, payload=p.fraction if p else 1.0,
-                     change=p.cycle if p else cycles + 10, seed=seed, learn=L.enabled,
+    run = learn_trot(legged, cycles=cycles, payload=p.fraction if p else 0.0,
+                     slope=None if cfg.slope is None else (cfg.slope.angle, cfg.slope.roll),
+                     change=cycles + 10 if change is None else change, seed=seed,
+                     learn=L.enabled,
                      plant=cfg.plant.simulator, gait=gait, controller=extra,
                      rate_hz=cfg.sim.rate_hz, impact_window=cfg.sim.impact_window_s,
                      start_speed=cfg.sim.start_velocity_scale,
@@ -160,11 +176,10 @@ def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int,
     n = len(fb)
     shares = np.array(ctl.share_rms, float).reshape(n, legged.nv - 6)
     times = np.array(ctl.cycle_times, float).reshape(n, 2)
-    change = p.cycle if p else None
     rows = [{"seed": seed, "cycle": c, "fb_total": float(fb[c]),
              **{f"fb_share_{m}": float(shares[c, i]) for i, m in enumerate(legged.motors)},
              "t_start_s": float(times[c, 0]), "t_end_s": float(times[c, 1]),
-             "payload": int(change is not None and c >= change)} for c in range(n)]
+             "changed": int(change is not None and c >= change)} for c in range(n)]
     walked = run.kind is None and n >= cycles
     reason = run.log.not_walking or (None if walked else
                                      f"stopped after {n} of {cycles} cycles")
@@ -197,8 +212,8 @@ def failure(cfg: LeggedExperimentConfig, entry: dict[str, Any], cycles: int) -> 
     crit = cfg.success
     if crit.fb_ratio_max is not None:
         if crit.ratio_from == "change" and entry.get("fb_ratio_change") is None:
-            return (f"the seed ended after {entry['cycles']} cycles, before the payload's cycle "
-                    f"{cfg.payload.cycle} that success.ratio_from: change measures from")
+            return (f"the seed ended after {entry['cycles']} cycles, before the world's change "
+                    f"at cycle {cfg.change_cycle} that success.ratio_from: change measures from")
         key = "fb_ratio_change" if crit.ratio_from == "change" else "fb_ratio"
         ratio = entry.get(key)
         if ratio is None or ratio > crit.fb_ratio_max:
@@ -282,7 +297,7 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
         raise
     finally:
         lock.release()
-    draw_feedback(out_dir, results, cfg.payload.cycle if cfg.payload else None)
+    draw_feedback(out_dir, results, cfg.change_cycle)
     return summary
 
 
@@ -303,7 +318,7 @@ def write_summary(cfg: LeggedExperimentConfig, legged, out_dir: Path, results: l
         "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "robot": legged.name, "mass_kg": legged.mass, "motors": legged.motors,
         "feet": list(legged.feet), "plant": cfg.plant.simulator, "cycles": cycles,
-        "change_cycle": cfg.payload.cycle if cfg.payload else None,
+        "change_cycle": cfg.change_cycle, "world": world(cfg, legged),
         "success": cfg.success.model_dump(), "seeds": entries,
         "aggregate": {"n_seeds": len(entries), "n_walked": sum(e["walked"] for e in entries),
                       "n_failed": n_failed, "n_diverged": 0,
@@ -327,7 +342,7 @@ def draw_feedback(out_dir: Path, results: list[dict], change: int | None) -> Pat
         fb = r["params"]["feedback"]
         ax.plot(np.arange(len(fb)), fb, lw=1.2, label=f"seed {r['entry']['seed']}")
     if change is not None:
-        ax.axvline(change, color="k", ls=":", lw=1, label=f"payload on (cycle {change})")
+        ax.axvline(change, color="k", ls=":", lw=1, label=f"world changes (cycle {change})")
     ax.set_yscale("log")
     ax.set_xlabel("cycle")
     ax.set_ylabel("summed feedback per cycle [N m]")
@@ -350,7 +365,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path, out: TextIO | None = N
     agg = summary["aggregate"]
     n = agg["n_seeds"]
     print(f"{summary['config']}: {n} seed{'' if n == 1 else 's'} x {summary['cycles']} cycles, "
-          f"{summary['robot']} on {summary['plant']}, payload from cycle "
+          f"{summary['robot']} on {summary['plant']}, {summary['world']} from cycle "
           f"{fmt(summary['change_cycle'], 'd')}; summed feedback [N m]", file=out)
     print(f"  {'seed':>4} {'cycles':>6} {'outcome':<12} {'fb_first':>9} {'fb_before':>9} "
           f"{'fb_change':>9} {'fb_last':>9} {'last/chg':>8} {'speed':>6}", file=out)

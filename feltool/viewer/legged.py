@@ -1,7 +1,7 @@
 """A legged run's rollout as one HTML file: the robot's meshes (Pinocchio's MeshcatVisualizer,
 as :func:`feltool.viewer.html.record_html` draws them) moving along a seed's recorded
 configurations (``traces/seed-N.npz`` of :mod:`feltool.runs.legged`): the cycles around the
-payload's arrival and the last cycles."""
+world's change (payload, slope) and the last cycles."""
 
 from __future__ import annotations
 
@@ -40,7 +40,8 @@ def visual_robot(robot: str, urdf: Path | None):
 def write_legged_html(run_dir: Path, robot, seed: int | None = None,
                       path: Path | None = None) -> Path:
     """Write ``rollout.html`` (default ``run_dir/rollout.html``) for ``seed`` (default the
-    run's first): the cycles from one before the payload's cycle, and the last cycles."""
+    run's first): the cycles from one before the world's change (payload, slope), and the last
+    cycles."""
     from feltool.viewer.html import record_html
 
     run_dir = Path(run_dir)
@@ -58,7 +59,7 @@ def write_legged_html(run_dir: Path, robot, seed: int | None = None,
     if n:
         windows = {"last cycles": (max(0, n - CLIP_CYCLES), n - 1)}
         if change is not None and change < n:
-            windows = {f"payload on (cycle {change})": (max(0, change - 1),
+            windows = {f"world changes (cycle {change})": (max(0, change - 1),
                                                          min(n - 1, change + CLIP_CYCLES - 2)),
                        **windows}
         for name, (a, b) in windows.items():

@@ -57,7 +57,7 @@ import numpy as np
 
 from feltool.errors import InputError
 from feltool.motion import spectral
-from feltool.walking.legged.model import LeggedModel, Payload, with_payload
+from feltool.walking.legged.model import LeggedModel, Payload, sloped, with_payload
 from feltool.walking.legged.mujoco_stand import stand_mujoco
 from feltool.walking.legged.orbit import ReferenceCorrection, acquire_orbit
 from feltool.walking.legged.stand import StandLog, random_start, stand
@@ -223,11 +223,13 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                impact_window: float = 1e-4, start_speed: float = 1.0,
                correction: ReferenceCorrection | None = None, acquire: int = 4,
                feedforward: PhaseFeedforward | None = None,
-               controller: dict | None = None) -> TrotLearning:
-    """Trot ``cycles`` cycles learning the feedforward, the robot carrying a payload of
+               controller: dict | None = None,
+               slope: tuple[float, float] | None = None) -> TrotLearning:
+    """Trot ``cycles`` cycles learning the feedforward in a world the controller's model does
+    not know from the start of cycle ``change`` on: the robot carrying a payload of
     ``payload`` times its mass on its base (a point mass at its origin,
-    :class:`~feltool.walking.legged.model.Payload`) from the start of cycle
-    ``change`` on, which the controller's model does not know.
+    :class:`~feltool.walking.legged.model.Payload`; 0: none) and, with ``slope``, on a ground
+    inclined by ``(angle, roll)`` [rad] (:func:`~feltool.walking.legged.model.sloped`).
 
     Args:
         legged: The robot (its feet those of ``gait.groups``).
@@ -261,18 +263,22 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                                  learn_from=0 if learn else np.iinfo(np.int64).max,
                                  learned=feedforward, **extra)
     gait = ctl.gait
-    load = Payload(payload * legged.mass)
+    load = Payload(payload * legged.mass) if payload > 0 else None
+    world = with_payload(legged, load)
+    world = world if slope is None else sloped(world, *slope)
     v0 = random_start(legged, np.random.default_rng(seed), start_speed)
     duration = gait.start + gait.ramp + 2.0 * (cycles + 2) * gait.period
     common = dict(v0=v0, duration=duration, rate_hz=rate_hz, schedule=gait.schedule,
                   on_touchdown=gait.touchdown, until=lambda t: ctl.cycle >= cycles)
     if plant == "pinocchio":
-        heavy = with_payload(legged, load).model
         log = stand(legged, ctl, q0, impact_window=impact_window,
-                    plant=lambda t: heavy if ctl.cycle >= change else None, **common)
+                    plant=lambda t: world.model if ctl.cycle >= change else None, **common)
     else:
-        log = stand_mujoco(legged, ctl, q0, payload=load,
-                           payload_from=lambda t: ctl.cycle >= change, **common)
+        gravity = None if slope is None else world.model.gravity.linear
+        changes = load is not None or slope is not None
+        log = stand_mujoco(legged, ctl, q0, payload=load, gravity=gravity,
+                           payload_from=(lambda t: ctl.cycle >= change) if changes else None,
+                           **common)
     fb = np.sqrt((np.array(ctl.share_rms).reshape(-1, legged.nv - 6) ** 2).sum(axis=1))
     half = len(log.t) // 2
     speed = float((log.q[-1, 0] - log.q[half, 0]) / max(log.t[-1] - log.t[half], 1e-300))

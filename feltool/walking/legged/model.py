@@ -288,3 +288,23 @@ def with_payload(legged: LeggedModel, payload: Payload | None) -> LeggedModel:
     model.inertias[1] = model.inertias[1] + payload.inertia()
     return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
                        q0=legged.q0.copy(), name=f"{legged.name}+payload")
+
+
+def sloped(legged: LeggedModel, angle: float, roll: float = 0.0) -> LeggedModel:
+    """A copy of ``legged`` standing on a ground inclined by ``angle`` [rad] about the ground's
+    y axis and ``roll`` [rad] about its x axis (the plant's model of the unknown world): the
+    ground stays the plane z = 0 of the robot's coordinates and the gravity turns, about y
+    by ``-angle`` and then about x by ``roll`` (positive ``angle``: gravity towards +x, downhill ahead,
+    as the fixed-base experiments' slope event; positive ``roll``: towards +y, downhill to the
+    left). The contacts, friction cones and checks keep their meaning relative to the ground."""
+    if not (np.isfinite(angle) and np.isfinite(roll)) or max(abs(angle), abs(roll)) >= np.pi / 4:
+        raise ConfigError([("slope", f"angles within +-pi/4 [rad], got {angle}, {roll}")])
+    model = pin.Model(legged.model)
+    c, s = np.cos(angle), np.sin(angle)
+    pitch = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # about y by -angle
+    c, s = np.cos(roll), np.sin(roll)
+    lateral = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])  # about x by roll
+    model.gravity = pin.Motion(lateral @ pitch @ model.gravity.linear, np.zeros(3))
+    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
+                       q0=legged.q0.copy(), name=f"{legged.name}+slope")
+

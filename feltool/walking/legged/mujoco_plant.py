@@ -89,6 +89,8 @@ class LeggedMujoco:
         impratio: MuJoCo's friction-to-normal impedance ratio [-] (:data:`IMPRATIO`);
             ``noslip_iterations`` its no-slip post-solver's iterations (0: off).
         payload: A point mass on the base (:class:`Payload`), or None.
+        gravity: The linear gravity [m/s^2] of the unknown world (a slope:
+            :func:`~feltool.walking.legged.model.sloped`), or None: the known model's.
         floor: False: no floor (free flight).
 
     Attributes:
@@ -102,7 +104,7 @@ class LeggedMujoco:
                  timeconst: float | None = None, dampratio: float = DAMPRATIO,
                  solimp: tuple = SOLIMP, impratio: float = IMPRATIO,
                  noslip_iterations: int = 0, payload: Payload | None = None,
-                 floor: bool = True):
+                 gravity: np.ndarray | None = None, floor: bool = True):
         mujoco = self._mj = import_mujoco()
         self.legged = legged
         path = solo12_urdf() if urdf is None else Path(urdf)
@@ -112,8 +114,9 @@ class LeggedMujoco:
             spec = mujoco.MjSpec.from_string(_urdf_without_geometry(path))
         except Exception as exc:
             raise RobotError(f"MuJoCo cannot read '{path}': {exc}") from None
-        urdf_settings(mujoco, spec, timestep, integrator, legged.model.gravity.linear,
-                      discard_visual=False)
+        self.gravity = None if gravity is None else np.array(gravity, float)
+        urdf_settings(mujoco, spec, timestep, integrator, legged.model.gravity.linear
+                      if gravity is None else self.gravity, discard_visual=False)
         spec.option.impratio, spec.option.noslip_iterations = impratio, noslip_iterations
         for j in spec.joints:
             j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
@@ -156,12 +159,17 @@ class LeggedMujoco:
         self._f6 = np.zeros(6)
 
     def carry(self, on: bool) -> None:
-        """Put the payload this plant was compiled with on the base (``on``) or take it off
-        (its mass 0): a world that changes during a rollout."""
-        if self.payload is None:
-            raise ConfigError([("payload", "the plant was compiled without one")])
-        body = self.model.body("feltool_payload").id
-        self.model.body_mass[body] = float(self.payload.mass) if on else 0.0
+        """Put the unknown world this plant was compiled with on (``on``) or off: the payload
+        on the base or taken off (its mass 0), the gravity of a slope or the known model's: a
+        world that changes during a rollout."""
+        if self.payload is None and self.gravity is None:
+            raise ConfigError([("payload", "the plant was compiled without a payload or a "
+                                           "slope")])
+        if self.gravity is not None:
+            self.model.opt.gravity[:] = self.gravity if on else self.legged.model.gravity.linear
+        if self.payload is not None:
+            body = self.model.body("feltool_payload").id
+            self.model.body_mass[body] = float(self.payload.mass) if on else 0.0
         mj, d = self._mj, self.data
         spec = mj.mjtState.mjSTATE_INTEGRATION
         state = np.empty(mj.mj_stateSize(self.model, spec))

@@ -116,8 +116,9 @@ def stand_mujoco(legged: LeggedModel, controller: StandingController, q0: np.nda
         plant: A compiled plant to use (else one is compiled with ``payload`` and
             ``mujoco_options``, e.g. ``timeconst``, ``dampratio``, ``integrator``).
         max_tilt: Largest |roll| and |pitch| of the base [rad] (kind ``tilt``).
-        payload_from: ``t [s] -> bool``: the ``payload`` is on the base only from the first
-            control step at which it is True (a world that changes; default: from the start).
+        payload_from: ``t [s] -> bool``: the ``payload`` is on the base (and the plant's
+            ``gravity``, a slope, among ``mujoco_options``, acts) only from the first control
+            step at which it is True (a world that changes; default: from the start).
         until: ``t [s] -> bool``, asked after every control step: True ends the rollout
             (as :func:`~feltool.walking.legged.stand.stand`'s).
     """
