@@ -24,7 +24,7 @@ feet it is not: on four feet Solo-12's 12 motors move only the 6 degrees of free
 leave (``rank`` :math:`B^\top W B = 6`); the other 6 directions of :math:`u` squeeze the feet
 against each other, changing the contact forces and nothing else. Choosing them is what keeps
 each foot pushing and inside its friction cone: an inequality problem, solved as a QP
-(``qpsolvers`` with ``proxqp``) in two stages. The contact forces are affine in :math:`u`,
+(``qpsolvers`` with :data:`QP_SOLVER`) in two stages. The contact forces are affine in :math:`u`,
 :math:`\lambda(u) = \Lambda(JM^{-1}(b - Bu) - \gamma)`, :math:`\Lambda = (JM^{-1}J^\top)^{-1}`
 (the KKT solution of the stance dynamics on Pinocchio's :math:`M, b, J, \gamma`), and are kept
 in an inner friction pyramid :math:`|f_{x}|, |f_{y}| \le \mu' f_z/\sqrt 2`,
@@ -59,9 +59,15 @@ from feltool.walking.legged.contact import LeggedContact, pinv_psd
 from feltool.walking.legged.model import LeggedModel
 
 #: The weight of a link's internal forces [N] against the torques [N m] in the QP's cost (a
-#: choice among equally good distributions; 1e-6 left proxqp's problem too ill-conditioned to
-#: converge on Talos' soles)
+#: choice among equally good distributions; 1e-6 left the problem on Talos' soles too
+#: ill-conditioned for an iterative solver)
 INTERNAL = 1e-3
+
+#: The legged loop's QP solver (``qpsolvers``' name): DAQP, a dual active-set method, exact on
+#: its active set and deterministic. ProxQP (an augmented Lagrangian, to a tolerance) was used
+#: before: the same problem, bit for bit, came back different by 1e-11 from one call to the
+#: next in one process (measured), so a seed's rollout was not the same twice.
+QP_SOLVER = "daqp"
 
 
 @dataclass
@@ -220,8 +226,7 @@ class StandingController:
             big = np.full(m, 1e9)
             x = qpsolvers.solve_qp(P, np.r_[-c, np.zeros(m)],
                                    None if G is None else np.hstack([G, Gy]), h,
-                                   lb=np.r_[-lim, -big], ub=np.r_[lim, big], solver="proxqp",
-                                   eps_abs=1e-9, eps_rel=0.0)
+                                   lb=np.r_[-lim, -big], ub=np.r_[lim, big], solver=QP_SOLVER)
             solved = x is not None
             u, y = (None, None) if x is None else (x[:k], x[k:])
         if u is None:
@@ -269,8 +274,7 @@ class StandingController:
         hz = np.concatenate([lim - u0, lim + u0] + ([h - G @ u0] if G is not None else []))
         P = np.block([[np.eye(k), np.zeros((k, m))],
                       [np.zeros((m, k)), INTERNAL * np.eye(m)]])
-        x = qpsolvers.solve_qp(P, np.r_[N.T @ u0, np.zeros(m)], Gz, hz, solver="proxqp",
-                               eps_abs=1e-10, eps_rel=0.0)
+        x = qpsolvers.solve_qp(P, np.r_[N.T @ u0, np.zeros(m)], Gz, hz, solver=QP_SOLVER)
         if x is None:
             return None, None, False
         return u0 + N @ x[:k], x[k:], True

@@ -17,7 +17,7 @@ here a **polyhedral cone inscribed in the circular one**: ``faces`` planes
 :math:`\theta_k = 2\pi k/F` (default :math:`F = 8`, an octagon: it keeps 92 % of the circle's
 radius; an impulse in it passes the circular check), and :math:`\iota_z \ge 0`;
 :math:`K_i^*` is its dual cone. It is solved in its dual, a QP in the impulses
-(``qpsolvers`` with ``proxqp``):
+(``qpsolvers`` with :data:`~feltool.walking.legged.control.QP_SOLVER`):
 
 .. math::
 
@@ -59,6 +59,7 @@ import qpsolvers
 from scipy.linalg import cho_factor, cho_solve
 
 from feltool.walking.legged.contact import LeggedContact
+from feltool.walking.legged.control import QP_SOLVER
 from feltool.walking.legged.sole import distribute, polygon_cone
 
 
@@ -132,7 +133,7 @@ def unilateral_impact(contact: LeggedContact, q: np.ndarray, v: np.ndarray,
     # no normal impulse take a tangential one), the polish checks the normal impulses alone
     A = polygon_cone(n, friction if np.isfinite(friction) else 1e3, faces)
     lam = _impulse_qp(G, c, A, contact.redundant(feet))
-    if lam is None:  # proxqp stopped short: the pyramid always holds 0, the energy's minimum
+    if lam is None:  # the solver gave up: the pyramid always holds 0, the energy's minimum
         lam = np.zeros(3 * n)
     lam = np.asarray(lam, float)
     before = contact.kinetic_energy(q, v_in)
@@ -166,14 +167,13 @@ def unilateral_impact(contact: LeggedContact, q: np.ndarray, v: np.ndarray,
 
 
 def _impulse_qp(G: np.ndarray, c: np.ndarray, A: np.ndarray, redundant: bool):
-    """The QP above, or None when proxqp stops short. For points of one link (``redundant``)
+    """The QP above, or None when the solver gives up. For points of one link (``redundant``)
     :math:`G` is singular: the impulses are :math:`R\\xi + Y y`, :math:`R` the range of
     :math:`G` (the objective's, positive definite on it) and :math:`Y` its null space (impulses
     internal to a link: they change no velocity), weighted by 1e-3 of :math:`G`'s mean
     eigenvalue so the problem stays well conditioned."""
     if not redundant:
-        return qpsolvers.solve_qp(G, c, A, np.zeros(A.shape[0]), solver="proxqp",
-                                  eps_abs=1e-12, eps_rel=0.0)
+        return qpsolvers.solve_qp(G, c, A, np.zeros(A.shape[0]), solver=QP_SOLVER)
     ev, V = np.linalg.eigh(G)
     keep = ev > 1e-10 * max(float(ev.max()), 1e-300)
     R, Y = V[:, keep], V[:, ~keep]
@@ -181,7 +181,7 @@ def _impulse_qp(G: np.ndarray, c: np.ndarray, A: np.ndarray, redundant: bool):
     P = np.block([[np.diag(ev[keep]), np.zeros((k, m))],
                   [np.zeros((m, k)), 1e-3 * ev[keep].mean() * np.eye(m)]])
     x = qpsolvers.solve_qp(P, np.r_[R.T @ c, np.zeros(m)], A @ np.hstack([R, Y]),
-                           np.zeros(A.shape[0]), solver="proxqp", eps_abs=1e-12, eps_rel=0.0)
+                           np.zeros(A.shape[0]), solver=QP_SOLVER)
     return None if x is None else R @ x[:k] + Y @ x[k:]
 
 
