@@ -9,6 +9,10 @@ from __future__ import annotations
 
 import csv
 import json
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -155,11 +159,15 @@ def test_a_missed_success_bound_exits_1_and_keeps_the_results(tmp_path, capsys):
     assert "fb_last / fb_change" in printed and "> success.fb_ratio_max = 0.01" in printed
     summary = json.loads((out / "summary.json").read_text())
     assert summary["verdict"] == "failed" and summary["seeds"][0]["walked"]
-    # a run directory belongs to one command: not reused, not resumed
+    # a run directory belongs to one command: not reused; resumed, a finished run runs
+    # nothing again and says its verdict again
     assert main(["run", str(path), "--out", str(out)]) == 2
-    assert main(["run", "--resume", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert "already holds" in err and "cannot be resumed" in err
+    assert "already holds" in capsys.readouterr().err
+    params = (out / "params" / "seed-0.npz").stat().st_mtime_ns
+    assert main(["run", "--resume", str(out)]) == 1
+    assert "seed 0 (1/1): kept from the run directory" in capsys.readouterr().err
+    assert (out / "params" / "seed-0.npz").stat().st_mtime_ns == params
+    assert json.loads((out / "summary.json").read_text())["verdict"] == "failed"
 
 
 def _solo_urdf() -> str:
@@ -221,11 +229,57 @@ def test_a_urdf_robot_with_link_and_offset_feet_checks(tmp_path, capsys):
 
 
 def test_options_the_legged_run_does_not_take_exit_2(tmp_path, capsys):
-    for extra in (["--realtime"], ["--view"], ["--resume"]):
+    for extra in (["--realtime"], ["--view"]):
         assert main(["run", str(SHIPPED), "--out", str(tmp_path / "x"), "--cycles", "1",
                      "--seeds", "0", *extra]) == 2
         assert "legged" in capsys.readouterr().err
+    assert main(["run", str(SHIPPED), "--resume", str(tmp_path / "x")]) == 2
+    assert "no run.json" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def _summary_numbers(path: Path) -> dict:
+    """summary.json without what differs between two runs of the same seeds (times)."""
+    summary = json.loads(path.read_text())
+    summary.pop("created_utc")
+    for s in summary["seeds"]:
+        s.pop("wall_s")
+    return summary
+
+
+def test_an_interrupted_run_resumes_its_unfinished_seeds(tmp_path):
+    """SIGTERM while seed 1 trots: exit 143, seed 0's results kept and the hint printed; the
+    same config with other cycles or payload is refused naming what differs (exit 2, nothing
+    changed); ``--resume`` runs seed 1 only (seed 0's files untouched), and the run's summary
+    and metrics are those of an uninterrupted run."""
+    path = _config(tmp_path, payload__cycle=2, walking__acquire=1)
+    cut, whole = tmp_path / "cut", tmp_path / "whole"
+    args = [str(path), "--seeds", "0-1", "--cycles", "12"]
+    proc = subprocess.Popen([sys.executable, "-m", "feltool.cli", "run", *args, "--out",
+                             str(cut)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not (cut / "seeds" / "seed-0.json").exists() and proc.poll() is None:
+        assert time.monotonic() < deadline, "seed 0 did not finish"
+        time.sleep(0.2)
+    time.sleep(1.0)  # into seed 1
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, (out, err)
+    assert f"feltool run --resume {cut}" in err and "Traceback" not in err
+    assert not (cut / "summary.json").exists() and not (cut / "seeds" / "seed-1.json").exists()
+    kept = (cut / "params" / "seed-0.npz").stat().st_mtime_ns
+    for changed, said in ((["--cycles", "14"], "cycles: 12 -> 14"),
+                          (["--set", "payload.fraction=0.3"], "payload.fraction: 0.2 -> 0.3")):
+        bad = feltool("run", *args, *changed, "--resume", str(cut))
+        assert bad.returncode == 2 and said in bad.stderr, bad.stderr
+    assert json.loads((cut / "run.json").read_text())["state"] == "interrupted"
+    resumed = feltool("run", "--resume", str(cut))
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert "seed 0 (1/2): kept from the run directory" in resumed.stderr
+    assert (cut / "params" / "seed-0.npz").stat().st_mtime_ns == kept
+    assert feltool("run", *args, "--out", str(whole)).returncode == 0
+    assert _summary_numbers(cut / "summary.json") == _summary_numbers(whole / "summary.json")
+    assert (cut / "metrics.csv").read_text() == (whole / "metrics.csv").read_text()
 
 
 WALK = CONFIGS / "legged" / "talos_walk.yaml"

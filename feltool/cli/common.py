@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from feltool.bounds import parse_seeds
+
 
 def positive_int(text: str) -> int:
     try:
@@ -67,3 +69,14 @@ def print_warnings(robot) -> None:
     """What lenient URDF reading accepted (robot.lenient), one line each, on stderr."""
     for line in robot.warnings:
         print(f"feltool: warning: {line} (robot.lenient)", file=sys.stderr)
+
+
+def config_overrides(args: argparse.Namespace) -> list[str]:
+    """``feltool run``'s changes to its CONFIG: ``--set`` as given, ``--cycles`` and
+    ``--seeds`` as ``sim.cycles=`` and ``seeds=``."""
+    out = list(args.set or [])
+    if args.cycles is not None:
+        out.append(f"sim.cycles={args.cycles}")
+    if args.seeds is not None:
+        out.append(f"seeds={parse_seeds(args.seeds)}")
+    return out

@@ -4,7 +4,9 @@ the trot with FEL over its seeds (:mod:`feltool.runs.legged`)."""
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -24,15 +26,17 @@ def legged_raw(config: str, overrides: list[str]) -> tuple[Path, dict[str, Any]]
 
 
 #: ``feltool run`` options a legged run does not take yet, and why
-_REFUSED = {"resume": "a legged run cannot be resumed yet; start it again with a new --out",
-            "view": "the live viewer does not show legged robots yet",
+_REFUSED = {"view": "the live viewer does not show legged robots yet",
             "zmq_url": "the live viewer does not show legged robots yet",
             "realtime": "the live viewer does not show legged robots yet"}
 
 
-def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]) -> int:
-    """``feltool run`` on a legged config: exit 0 when every seed trotted (or walked) physically through
-    every cycle and met ``success:``, 1 otherwise, 2 on bad input."""
+def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any],
+                       out_dir: Path | None = None, resume: bool = False) -> int:
+    """``feltool run`` on a legged config: exit 0 when every seed trotted (or walked) physically
+    through every cycle and met ``success:``, 1 otherwise, 2 on bad input, 130 / 143 when
+    interrupted (the finished seeds kept for ``--resume``). With ``resume``: continue the
+    interrupted run in ``out_dir``."""
     from feltool.cli.common import progress_mode
     from feltool.config.legged import parse_legged_config
     from feltool.runs.legged import (
@@ -53,13 +57,15 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
         print("feltool: note: a legged run's seeds run one after another (--workers ignored)",
               file=sys.stderr)
     legged = load_legged_robot(cfg, path.parent, str(path))  # bad input: nothing written
-    if args.out is not None:
-        refuse_taken(args.out)
-    out_dir = args.out or default_out_dir(cfg.name)
+    out_dir = out_dir or args.out
+    if out_dir is not None and not resume:
+        refuse_taken(out_dir)
+    out_dir = out_dir or default_out_dir(cfg.name)
     gait = "walk" if cfg.walking.walk else "trot"
     print(f"feltool: legged {gait}, {cfg.plant.simulator} plant (one seed at a time)", flush=True)
-    summary = run_legged(cfg, raw, path, out_dir, progress=sys.stderr if bar or lines else None,
-                         legged=legged)
+    with _sigterm_interrupts():
+        summary = run_legged(cfg, raw, path, out_dir, legged=legged, resume=resume,
+                             progress=sys.stderr if bar or lines else None)
     print_summary(summary, out_dir)
     if args.html:
         from feltool.viewer.legged import visual_robot, write_legged_html
@@ -67,6 +73,51 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
         robot = visual_robot(cfg.robot, cfg.urdf_path(path.parent))
         print(f"  rollout: {write_legged_html(out_dir, robot)}")
     return exit_code(summary)
+
+
+def resume_legged_command(args: argparse.Namespace, out_dir: Path) -> int | None:
+    """``feltool run --resume RUN_DIR [CONFIG]`` when RUN_DIR holds a legged run or CONFIG is
+    a legged config (else None: the walkers' and arms' resume): its unfinished seeds run, with
+    the stored config (or CONFIG, which must be the same)."""
+    from feltool.cli.common import config_overrides
+    from feltool.runs.rundir import read_json
+
+    meta_path = Path(out_dir) / "run.json"
+    meta = read_json(meta_path) if meta_path.is_file() else {}
+    given = None if args.config is None else legged_raw(args.config, config_overrides(args))
+    if meta.get("kind") != "legged" and given is None:
+        return None
+    if given is not None:
+        path, raw = given
+    else:
+        if args.set or args.seeds:
+            raise InputError("--set/--seeds change the config: give the CONFIG too, so the "
+                             "resume can check it is the same run")
+        if not meta.get("source"):
+            raise InputError(f"--resume {out_dir}: its run.json names no config file; give "
+                             "the CONFIG")
+        from feltool.config.files import apply_overrides
+
+        path, raw = Path(meta["source"]), meta.get("raw", {})
+        if args.cycles is not None:
+            raw = apply_overrides(raw, [f"sim.cycles={args.cycles}"])
+    return run_legged_command(args, path, raw, out_dir=Path(out_dir), resume=True)
+
+
+@contextmanager
+def _sigterm_interrupts():
+    """SIGTERM interrupts the legged run as Ctrl-C does (its finished seeds kept, exit 143)."""
+    from feltool.runs.checkpoint import request_stop
+
+    def on_term(signum, _frame):
+        request_stop(signum)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def check_legged(path: Path, raw: dict[str, Any]) -> int:

@@ -6,9 +6,9 @@ import argparse
 import time
 from pathlib import Path
 
-from feltool.bounds import parse_seeds
 from feltool.cli.common import (
     add_progress_options,
+    config_overrides,
     cycle_count,
     load_config,
     positive_int,
@@ -40,9 +40,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if resume and out_dir is None:
         raise InputError("--resume needs the run directory: --resume RUN_DIR (or --out RUN_DIR)")
     if resume:
-        from feltool.runs.legged import check_not_resumable
+        from feltool.cli.legged import resume_legged_command
 
-        check_not_resumable(out_dir)
+        code = resume_legged_command(args, out_dir)
+        if code is not None:  # a legged run (walking.base: free_flyer)
+            return code
     if args.config is None:  # resume with the stored config
         if args.set or args.seeds:
             raise InputError("--set/--seeds change the config: give the CONFIG too, so the "
@@ -50,11 +52,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         exp, meta = stored_experiment(out_dir)
         raw, seeds, cycles = meta["raw"], meta["seeds"], args.cycles or meta["cycles"]
     else:
-        overrides = list(args.set or [])
-        if args.cycles is not None:
-            overrides.append(f"sim.cycles={args.cycles}")
-        if args.seeds is not None:
-            overrides.append(f"seeds={parse_seeds(args.seeds)}")
+        overrides = config_overrides(args)
         from feltool.cli.legged import legged_raw, run_legged_command
 
         legged = legged_raw(args.config, overrides)

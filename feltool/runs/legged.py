@@ -4,7 +4,9 @@
 ::
 
     config.yaml          the resolved config (defaults filled in, a URDF path absolute)
-    run.json             inputs and state (feltool.runs.runstate); not resumable yet
+    run.json             inputs and state (feltool.runs.runstate), the config's fingerprint
+    seeds/seed-N.json    a finished seed's metrics rows and summary entry, its last file:
+                         what ``feltool run --resume`` keeps (it runs the seeds without one)
     metrics.csv          one row per (seed, cycle): fb_total (the summed feedback [N m]),
                          fb_share_<motor> (each motor's RMS feedback share [N m]), t_start_s,
                          t_end_s, changed (1 once the unknown world, payload or slope, is on)
@@ -31,12 +33,15 @@ from feltool._version import __version__
 from feltool.config.legged import LeggedExperimentConfig, legged_config_yaml
 from feltool.errors import ConfigError, InputError, RobotError
 from feltool.files import WriteError, make_dirs
-from feltool.runs.rundir import atomic_write, save_npz, write_by, write_json, write_metrics
+from feltool.runs.checkpoint import Interrupted
+from feltool.runs.rundir import atomic_write, read_json, save_npz, write_by, write_json, write_metrics
 from feltool.runs.runstate import (
     NOTHING_WRITTEN,
     RunLock,
+    config_differences,
     describe_contents,
     has_contents,
+    read_meta,
     set_state,
 )
 
@@ -227,46 +232,64 @@ def failure(cfg: LeggedExperimentConfig, entry: dict[str, Any], cycles: int) -> 
 
 def refuse_taken(out_dir: Path) -> None:
     """Raise :class:`InputError` unless ``out_dir`` is new or empty (a run directory belongs
-    to one command; a legged run cannot be resumed yet)."""
+    to one command; only an explicit resume continues it)."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir}: exists and is not a directory")
     if has_contents(out_dir):
         raise InputError(f"--out {out_dir}: already holds {describe_contents(out_dir)}; a run "
-                         "directory belongs to one command: choose a new --out (a legged run "
-                         "cannot be resumed yet)")
+                         "directory belongs to one command: choose a new --out, or continue "
+                         f"an interrupted run with feltool run --resume {out_dir}")
 
 
 def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_dir: Path,
                seeds: list[int] | None = None, cycles: int | None = None,
-               progress: TextIO | None = None, legged=None) -> dict[str, Any]:
+               progress: TextIO | None = None, legged=None,
+               resume: bool = False) -> dict[str, Any]:
     """Run every seed one after another into ``out_dir`` (new or empty: a run directory
     belongs to one command), write it, return the summary (``legged``: the config's robot,
-    already loaded by :func:`load_legged_robot`)."""
+    already loaded by :func:`load_legged_robot`). With ``resume``: continue the interrupted
+    run in ``out_dir`` made with the same config, seeds and cycles (else an
+    :class:`InputError` naming what differs), keeping its finished seeds and running the
+    others. Ctrl-C or SIGTERM between control steps: the finished seeds are kept, the run
+    marked interrupted (:class:`~feltool.runs.checkpoint.Interrupted`)."""
     seeds = list(seeds if seeds is not None else cfg.seed_list)
     cycles = cycles or cfg.sim.cycles
     base_dir = source.parent if source is not None else None
     if legged is None:  # bad input fails before anything is written
         legged = load_legged_robot(cfg, base_dir, str(source) if source else None)
     out_dir = Path(out_dir)
-    refuse_taken(out_dir)
+    if not resume:
+        refuse_taken(out_dir)
+    elif not (out_dir / "run.json").is_file():  # before the lock makes the directory
+        raise InputError(f"--resume {out_dir}: no run.json, so not a feltool run directory to "
+                         "resume")
     try:
         lock = RunLock(out_dir).acquire()
     except WriteError as exc:
         raise exc.keeping(NOTHING_WRITTEN, 2) from None
     try:
-        atomic_write(out_dir / "config.yaml", legged_config_yaml(cfg, base_dir))
-        write_json(out_dir / "run.json", {
-            "source": str(source.resolve()) if source else None, "raw": raw, "seeds": seeds,
-            "cycles": cycles, "kind": "legged"})
+        if resume:
+            check_resumable(out_dir, cfg, seeds, cycles)
+        else:
+            atomic_write(out_dir / "config.yaml", legged_config_yaml(cfg, base_dir))
+            write_json(out_dir / "run.json", {
+                "source": str(source.resolve()) if source else None, "raw": raw,
+                "seeds": seeds, "cycles": cycles, "kind": "legged",
+                "fingerprint": fingerprint(cfg)})
         set_state(out_dir, "running", cycles=cycles)
     except WriteError as exc:
         lock.release()
         raise exc.keeping(NOTHING_WRITTEN, 2) from None
+    except BaseException:
+        lock.release()
+        raise
+    done = finished_seeds(out_dir, seeds) if resume else {}
+    results: list[dict] = []
     try:
-        results = []
         t0 = time.perf_counter()
-        acquired = acquire_reference(cfg, legged)
+        todo = [s for s in seeds if s not in done]
+        acquired = acquire_reference(cfg, legged) if todo else None
         if acquired is not None:
             write_json(out_dir / "reference.json", {
                 "rounds": cfg.walking.acquire, "feedback_n_m": acquired.feedback,
@@ -277,11 +300,19 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
                                                              acquired.feedback) + " N m",
                       file=progress, flush=True)
         for i, seed in enumerate(seeds):
+            if seed in done:
+                results.append(done[seed])
+                if progress is not None:
+                    print(f"feltool: seed {seed} ({i + 1}/{len(seeds)}): kept from the "
+                          "run directory", file=progress, flush=True)
+                continue
             r = run_seed(cfg, legged, seed, cycles,
                          None if acquired is None else acquired.correction)
             results.append(r)
             save_npz(out_dir / "params" / f"seed-{seed}.npz", r["params"])
             save_npz(out_dir / "traces" / f"seed-{seed}.npz", r.pop("trace"))
+            write_json(out_dir / SEEDS_DIR / f"seed-{seed}.json",
+                       {"rows": r["rows"], "entry": r["entry"]})
             if progress is not None:
                 e = r["entry"]
                 print(f"feltool: seed {seed} ({i + 1}/{len(seeds)}): {e['cycles']} cycles, "
@@ -291,7 +322,8 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
         set_state(out_dir, "complete", outcome={"n_failed": summary["aggregate"]["n_failed"]})
     except KeyboardInterrupt:
         set_state(out_dir, "interrupted")
-        raise
+        raise Interrupted(f"interrupted with {len(results)} of {len(seeds)} seeds finished in "
+                          f"{out_dir}; continue with: feltool run --resume {out_dir}") from None
     except BaseException:
         set_state(out_dir, "failed")
         raise
@@ -299,6 +331,50 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
         lock.release()
     draw_feedback(out_dir, results, cfg.change_cycle)
     return summary
+
+
+#: Where each finished seed's rows and entry are kept (:func:`run_legged`)
+SEEDS_DIR = "seeds"
+
+
+def fingerprint(cfg: LeggedExperimentConfig) -> dict[str, Any]:
+    """The resolved config without its seeds (a resume checks them apart)."""
+    dump = cfg.model_dump(mode="json")
+    dump.pop("seeds", None)
+    return dump
+
+
+def check_resumable(out_dir: Path, cfg: LeggedExperimentConfig, seeds: list[int],
+                    cycles: int) -> None:
+    """Refuse to continue ``out_dir`` unless it is a legged run of the same config, seeds and
+    cycles (an :class:`InputError` listing what differs)."""
+    meta = read_meta(Path(out_dir) / "run.json", ("raw", "seeds", "cycles", "fingerprint"))
+    if meta.get("kind") != "legged":
+        raise InputError(f"--resume {out_dir}: not a legged run; resume it with its own config")
+    problems = config_differences(meta["fingerprint"], fingerprint(cfg))
+    if list(meta["seeds"]) != list(seeds):
+        problems.append(f"seeds: {meta['seeds']} -> {seeds}")
+    if int(meta["cycles"]) != cycles:
+        problems.append(f"cycles: {meta['cycles']} -> {cycles} (a seed trots its cycles in one "
+                        "rollout: a resume runs the unfinished seeds, it cannot add cycles)")
+    if problems:
+        raise InputError(f"--resume {out_dir}: the stored run differs from the one asked for; "
+                         "resume it as it is (feltool run --resume RUN_DIR) or start a new run:"
+                         "\n  " + "\n  ".join(problems[:12]))
+
+
+def finished_seeds(out_dir: Path, seeds: list[int]) -> dict[int, dict[str, Any]]:
+    """The seeds of ``seeds`` that finished in ``out_dir`` (their ``seeds/seed-N.json``), as
+    results of :func:`run_seed` without the trace (the feedback per cycle from the rows)."""
+    out = {}
+    for seed in seeds:
+        path = Path(out_dir) / SEEDS_DIR / f"seed-{seed}.json"
+        if path.is_file():
+            kept = read_json(path)
+            fb = np.array([row["fb_total"] for row in kept["rows"]], float)
+            out[seed] = {"rows": kept["rows"], "entry": kept["entry"],
+                         "params": {"feedback": fb}}
+    return out
 
 
 def write_summary(cfg: LeggedExperimentConfig, legged, out_dir: Path, results: list[dict],
@@ -391,18 +467,5 @@ def exit_code(summary: dict[str, Any]) -> int:
     return 1 if summary["aggregate"]["n_failed"] else 0
 
 
-def check_not_resumable(out_dir: Path) -> None:
-    """Raise :class:`InputError` when ``out_dir`` holds a legged run (no resume yet)."""
-    import json
-
-    try:
-        meta = json.loads((Path(out_dir) / "run.json").read_text())
-    except (OSError, ValueError):
-        return
-    if isinstance(meta, dict) and meta.get("kind") == "legged":
-        raise InputError(f"--resume {out_dir}: a legged run (walking.base: free_flyer) cannot be "
-                         "resumed yet; start it again with a new --out")
-
-
-__all__ = ["check_not_resumable", "describe", "exit_code", "load_legged_robot", "print_summary",
+__all__ = ["check_resumable", "describe", "exit_code", "load_legged_robot", "print_summary",
            "refuse_taken", "run_legged", "run_seed"]

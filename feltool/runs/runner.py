@@ -53,6 +53,7 @@ from feltool.runs.rundir import (
 from feltool.runs.runstate import (
     CLAIMED_DIRS,
     RunLock,
+    config_differences,
     default_out_dir,  # noqa: F401  (feltool run's and sweep's, imported from here)
     read_meta,
     refuse_existing,
@@ -250,13 +251,6 @@ def _fingerprint(exp: Experiment) -> dict[str, Any]:
     return json.loads(json.dumps(dump))
 
 
-def _differences(a: Any, b: Any, path: str = "") -> list[str]:
-    if isinstance(a, dict) and isinstance(b, dict):
-        return [d for k in sorted(set(a) | set(b), key=str)
-                for d in _differences(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))]
-    return [] if a == b else [f"{path or '<config>'}: {a!r} -> {b!r}"]
-
-
 def _check_resumable(run_dir: Path, exp: Experiment, seeds: list[int],
                      cycles: int) -> dict[str, Any]:
     """Refuse to continue ``run_dir`` with another config, other seeds, fewer cycles or other
@@ -270,7 +264,7 @@ def _check_resumable(run_dir: Path, exp: Experiment, seeds: list[int],
     if stored is None:  # a directory from before fingerprints: rebuild its config
         stored = _fingerprint(build_experiment(meta["raw"], Path(meta["source"])
                                                if meta["source"] else None))
-    problems = _differences(stored, _fingerprint(exp))
+    problems = config_differences(stored, _fingerprint(exp))
     if list(meta["seeds"]) != list(seeds):
         problems.append(f"seeds: {_seed_text(meta['seeds'])} -> {_seed_text(seeds)}")
     if cycles < meta["cycles"]:

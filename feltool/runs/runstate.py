@@ -211,3 +211,11 @@ def check_run_dir(path: Path) -> Path:
     if not (path / "summary.json").is_file() or not (path / "metrics.csv").is_file():
         raise InputError(f"{path}: not a feltool run directory (no summary.json / metrics.csv)")
     return path
+
+
+def config_differences(a: Any, b: Any, path: str = "") -> list[str]:
+    """Where two resolved configs (nested mappings) differ: ``path: a -> b`` per leaf."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [d for k in sorted(set(a) | set(b), key=str)
+                for d in config_differences(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))]
+    return [] if a == b else [f"{path or '<config>'}: {a!r} -> {b!r}"]
