@@ -212,7 +212,8 @@ def main() -> None:
 
     legged = legged_speed(args.repeats)
     print(f"  | 3D legged trot with FEL (Solo-12, configs/legged/solo12_trot) | {legged:,.0f} | "
-          f"- (no compiled form of the legged loop: its allocation is a QP per step) | - | - | "
+          f"- (no compiled form of the legged loop yet: docs/legged.md, benchmarks/"
+          f"legged_compiled_step.py) | - | - | "
           f"- | {legged / ref_aba:.4f} |", flush=True)
 
     print("\n3. cost per step [us] as the number of basis functions grows (standard arm; "
