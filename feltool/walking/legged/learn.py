@@ -263,7 +263,7 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                                  learn_from=0 if learn else np.iinfo(np.int64).max,
                                  learned=feedforward, **extra)
     gait = ctl.gait
-    load = Payload(payload * legged.mass) if payload > 0 else None
+    load = None if payload == 0 else Payload(payload * legged.mass)
     world = with_payload(legged, load)
     world = world if slope is None else sloped(world, *slope)
     v0 = random_start(legged, np.random.default_rng(seed), start_speed)
