@@ -99,6 +99,24 @@ def test_a_short_run_writes_its_directory_and_the_feedback_falls_after_the_chang
         assert list(p["coordinates"][6:9]) == ["FL_HAA", "FL_HFE", "FL_KFE"]
     assert yaml.safe_load((out / "config.yaml").read_text())["payload"]["cycle"] == 2
     _check_rollout_html(out)
+    _check_plot_and_view(out)
+
+
+def _check_plot_and_view(out: Path) -> None:
+    """``feltool plot`` and ``feltool view --html`` on the legged run directory: the figure
+    drawn again from metrics.csv, seed 1's rollout written; the live viewer refused, naming
+    --html."""
+    figure = out / "figures" / "legged_feedback.png"
+    figure.unlink()
+    plot = feltool("plot", str(out))
+    assert plot.returncode == 0 and plot.stdout.strip() == str(figure), plot.stderr
+    assert figure.stat().st_size > 10_000
+    view = feltool("view", str(out), "--html", "--seed", "1")
+    assert view.returncode == 0, view.stderr
+    assert "world changes (cycle 2)" in (out / "rollout-seed1.html").read_text()
+    live = feltool("view", str(out), "--view-timeout", "0")
+    assert live.returncode == 2 and "--html writes its rollout.html" in live.stderr
+    assert "Traceback" not in plot.stderr + view.stderr + live.stderr
 
 
 def test_a_slope_from_the_config_reaches_the_plant_and_the_run_says_so(tmp_path, capsys):

@@ -9,9 +9,11 @@ from feltool.cli.common import subcommand
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
+    from feltool.runs.legged import legged_run, redraw
     from feltool.runs.plots import draw_figures
 
-    for path in draw_figures(args.run_dir, args.seed):
+    legged = legged_run(args.run_dir) is not None
+    for path in redraw(args.run_dir) if legged else draw_figures(args.run_dir, args.seed):
         print(path)
     return 0
 

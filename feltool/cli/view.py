@@ -41,7 +41,11 @@ def exit_on_sigterm() -> None:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
+    from feltool.runs.legged import legged_run
     from feltool.viewer.rollout import load_rollouts, parse_cycles, run_robot, write_rollout_html
+
+    if legged_run(args.run_dir) is not None:
+        return view_legged(args)
 
     cycles = parse_cycles(args.cycles)
     if args.zmq_url is not None:
@@ -60,6 +64,24 @@ def cmd_view(args: argparse.Namespace) -> int:
     exit_on_sigterm()
     with LiveViewer(robot, zmq_url=args.zmq_url) as viewer:
         keep_viewing(viewer, args.run_dir, seed, cycles, args.loops, args.view_timeout)
+    return 0
+
+
+def view_legged(args: argparse.Namespace) -> int:
+    """``feltool view RUN_DIR --html`` on a legged run: its rollout.html (the seed's cycles
+    around the world's change and its last ones); the live viewer does not show legged robots
+    yet."""
+    from feltool.errors import InputError
+    from feltool.runs.legged import stored_config
+    from feltool.viewer.legged import visual_robot, write_legged_html
+
+    if not args.html:
+        raise InputError(f"{args.run_dir}: the live viewer does not show legged robots yet; "
+                         f"feltool view {args.run_dir} --html writes its rollout.html")
+    cfg, base_dir = stored_config(args.run_dir)
+    robot = visual_robot(cfg.robot, cfg.urdf_path(base_dir))
+    name = "rollout.html" if args.seed is None else f"rollout-seed{args.seed}.html"
+    print(write_legged_html(args.run_dir, robot, args.seed, path=args.run_dir / name))
     return 0
 
 

@@ -333,6 +333,43 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
     return summary
 
 
+def legged_run(run_dir: Path) -> dict[str, Any] | None:
+    """``run.json`` of ``run_dir`` when it is a legged run, else None."""
+    path = Path(run_dir) / "run.json"
+    if not path.is_file():
+        return None
+    meta = read_json(path)
+    return meta if meta.get("kind") == "legged" else None
+
+
+def stored_config(run_dir: Path) -> tuple[LeggedExperimentConfig, Path | None]:
+    """A legged run's config (its ``run.json``'s, as run) and the directory its relative paths
+    start from."""
+    from feltool.config.legged import parse_legged_config
+
+    meta = read_meta(Path(run_dir) / "run.json", ("raw", "source"))
+    source = Path(meta["source"]) if meta["source"] else None
+    return (parse_legged_config(meta["raw"], str(source) if source else None),
+            None if source is None else source.parent)
+
+
+def redraw(run_dir: Path) -> list[Path]:
+    """``feltool plot`` on a complete legged run: its figure drawn again from ``metrics.csv``."""
+    from feltool.runs.rundir import read_metrics
+
+    run_dir = Path(run_dir)
+    for name in ("metrics.csv", "summary.json"):
+        if not (run_dir / name).is_file():
+            raise InputError(f"{run_dir}: no {name}; plot a complete legged run (finish an "
+                             f"interrupted one with feltool run --resume {run_dir})")
+    rows = read_metrics(run_dir / "metrics.csv")
+    seeds = list(dict.fromkeys(int(r["seed"]) for r in rows))
+    results = [{"entry": {"seed": seed}, "params": {"feedback": np.array(
+        [r["fb_total"] for r in rows if int(r["seed"]) == seed], float)}} for seed in seeds]
+    change = read_json(run_dir / "summary.json").get("change_cycle")
+    return [draw_feedback(run_dir, results, change)]
+
+
 #: Where each finished seed's rows and entry are kept (:func:`run_legged`)
 SEEDS_DIR = "seeds"
 
@@ -467,5 +504,5 @@ def exit_code(summary: dict[str, Any]) -> int:
     return 1 if summary["aggregate"]["n_failed"] else 0
 
 
-__all__ = ["check_resumable", "describe", "exit_code", "load_legged_robot", "print_summary",
-           "refuse_taken", "run_legged", "run_seed"]
+__all__ = ["check_resumable", "describe", "exit_code", "legged_run", "load_legged_robot",
+           "print_summary", "redraw", "refuse_taken", "run_legged", "run_seed", "stored_config"]
