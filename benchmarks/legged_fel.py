@@ -21,10 +21,11 @@ motors), each cycle two steps.
 
 With ``--slope ANGLE[,ROLL]`` (in [rad]) the unknown world is (also) a ground inclined from the
 change's cycle on (feltool.walking.legged.model.sloped: positive ANGLE downhill ahead, ROLL
-downhill to the left); ``--payload 0`` for the slope alone.
+downhill to the left); with ``--masses SCALE`` every body's mass and inertia that many times the
+model's (feltool.walking.legged.model.scaled_masses); ``--payload 0`` for either alone.
 
 Usage: ``python benchmarks/legged_fel.py [--robot solo12|talos] [--cycles 150] [--seeds 0-9]
-[--payload 0.2] [--slope ANGLE[,ROLL]] [--change 3] [--no-learning] [--harmonics 0]
+[--payload 0.2] [--slope ANGLE[,ROLL]] [--masses SCALE] [--change 3] [--no-learning] [--harmonics 0]
 [--acquire 4] [--plant pinocchio|mujoco]``
 """
 
@@ -59,6 +60,8 @@ def main() -> None:
     ap.add_argument("--payload", type=float, default=0.2, help="fraction of the robot's mass")
     ap.add_argument("--slope", type=lambda x: tuple(float(a) for a in (x + ",0").split(",")[:2]),
                     default=None, help="ANGLE[,ROLL] of the ground in [rad] from the change on")
+    ap.add_argument("--masses", type=float, default=None,
+                    help="every body's mass and inertia times this from the change on")
     ap.add_argument("--change", type=int, default=3, help="the cycle the world changes")
     ap.add_argument("--no-learning", action="store_true")
     ap.add_argument("--harmonics", type=int, default=0,
@@ -88,6 +91,7 @@ def main() -> None:
               f"({time.perf_counter() - t0:.0f} s): summed feedback per round "
               + ", ".join(f"{f:.4f}" for f in acq.feedback) + " N m")
     slope = "" if args.slope is None else f", slope {args.slope[0]:g}, {args.slope[1]:g} rad"
+    slope += "" if args.masses is None else f", masses x {args.masses:g}"
     print(f"{robot.name} ({robot.mass:.3f} kg), payload {args.payload:.0%}{slope} from cycle "
           f"{args.change}, "
           f"{args.cycles} cycles, learning {'off' if args.no_learning else 'on'} "
@@ -101,7 +105,7 @@ def main() -> None:
         t0 = time.perf_counter()
         run = learn_trot(robot, cycles=args.cycles, payload=args.payload, change=args.change,
                          seed=seed, learn=not args.no_learning, plant=args.plant,
-                         slope=args.slope,
+                         slope=args.slope, mass_scale=args.masses,
                          correction=correction, acquire=0, gait=gait, controller=extra,
                          impact_window=window,
                          feedforward=PhaseFeedforward(args.harmonics, robot.nv))

@@ -72,7 +72,7 @@ EXEMPT = {
                                                      "(tests/test_legged_config.py runs it "
                                                      "short from its config)",
     "feltool run configs/legged/solo12_slope.yaml": "10 seeds x 40 cycles on a slope, ~4 min "
-                                                    "(tests/test_legged_slope.py learns on "
+                                                    "(tests/test_legged_worlds.py learns on "
                                                     "seeds 0-2; tests/test_legged_config.py "
                                                     "runs a slope short through the command)",
     "feltool run configs/legged/talos_walk.yaml": "10 seeds x 24 cycles of Talos walking, ~45 "

@@ -210,6 +210,8 @@ BAD = [
     ({"payload__cycle": 0}, "payload.cycle:"),
     ({"payload": None}, "success.ratio_from: change needs a change of the world"),
     ({"slope": {"angle": 0.1, "cycle": 4}}, "slope.cycle: the world changes once"),
+    ({"masses": {"scale": 1.2, "cycle": 5}}, "masses.cycle: the world changes once"),
+    ({"masses": {"scale": 0, "cycle": 3}}, "masses.scale:"),
     ({"slope": {"angle": 1.2, "cycle": 3}}, "slope.angle:"),
     ({"slope": {"angle": 0.1, "roll": "steep", "cycle": 3}}, "slope.roll:"),
     ({"slope": {"roll": 0.1, "cycle": 3}}, "slope.angle: required"),

@@ -166,6 +166,18 @@ class LeggedSlopeConfig(Strict):
                        "tilts (with a payload: the payload's cycle, one change of the world).")
 
 
+class LeggedMassesConfig(Strict):
+    """The unknown world: the robot's bodies heavier (or lighter) than the model says from the
+    start of a cycle on (every body's mass and rotational inertia scaled, the centres of mass
+    kept; feltool/walking/legged/model.py ``scaled_masses``)."""
+
+    scale: PositiveFloat = Field(le=10.0, description="Every body's mass and rotational "
+                                 "inertia in the plant, times the model's [-] (1.2: 20 % "
+                                 "heavier).")
+    cycle: int = Field(ge=1, le=MAX_CYCLES, description="The cycle at whose start the masses "
+                       "change (with a payload or a slope: theirs, one change of the world).")
+
+
 class LeggedLearningConfig(Strict):
     """FEL of the trot's feedforward: a Fourier series in the gait's phase per generalized
     coordinate, moved each cycle towards the feedback that moves the robot
@@ -203,6 +215,8 @@ class LeggedExperimentConfig(Strict):
                                                 "none.")
     slope: LeggedSlopeConfig | None = Field(None, description="The unknown world (also, or "
                                             "instead of the payload): a slope; default none.")
+    masses: LeggedMassesConfig | None = Field(None, description="The unknown world (also, or "
+                                              "instead): wrong masses; default none.")
     learning: LeggedLearningConfig = Field(default_factory=LeggedLearningConfig,
                                            description="Feedback error learning.")
     seeds: Annotated[int, Field(ge=1, le=MAX_SEEDS)] | Annotated[
@@ -284,24 +298,28 @@ class LeggedExperimentConfig(Strict):
         return out
 
     def _world_problems(self) -> list[tuple[str, str]]:
-        """The unknown world changes once (a payload and a slope together at one cycle); the
-        feedback ratio from the change needs one."""
+        """The unknown world changes once (a payload, a slope, wrong masses: together at one
+        cycle); the feedback ratio from the change needs one."""
         out = []
-        if self.payload is not None and self.slope is not None and \
-                self.slope.cycle != self.payload.cycle:
-            out.append(("slope.cycle", f"the world changes once: the slope's cycle "
-                                       f"{self.slope.cycle} is not the payload's "
-                                       f"{self.payload.cycle} (payload.cycle)"))
+        worlds = [(name, w) for name, w in (("payload", self.payload), ("slope", self.slope),
+                                            ("masses", self.masses)) if w is not None]
+        for name, w in worlds[1:]:
+            first, at = worlds[0]
+            if w.cycle != at.cycle:
+                out.append((f"{name}.cycle", f"the world changes once: cycle {w.cycle} is not "
+                                             f"{first}.cycle {at.cycle}"))
         if self.success.ratio_from == "change" and self.change_cycle is None:
             out.append(("success.ratio_from", "change needs a change of the world (payload: "
-                                              "{fraction: ..., cycle: ...} or slope: {angle: "
-                                              "..., cycle: ...})"))
+                                              "{fraction: ..., cycle: ...}, slope: {angle: "
+                                              "..., cycle: ...} or masses: {scale: ..., "
+                                              "cycle: ...})"))
         return out
 
     @property
     def change_cycle(self) -> int | None:
-        """The cycle at whose start the unknown world arrives (payload and/or slope), or None."""
-        world = self.payload or self.slope
+        """The cycle at whose start the unknown world arrives (payload, slope, masses), or
+        None."""
+        world = self.payload or self.slope or self.masses
         return None if world is None else world.cycle
 
     @property

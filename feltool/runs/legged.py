@@ -104,7 +104,7 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
 
 def world(cfg: LeggedExperimentConfig, legged) -> str:
     """The unknown world in words: ``payload 20% of 2.5 kg``, ``slope 0.1 rad uphill ahead``,
-    both, or ``no change of the world``."""
+    ``masses 1.2 times the model's``, together, or ``no change of the world``."""
     p, s = cfg.payload, cfg.slope
     parts = [] if p is None else [f"payload {p.fraction:.0%} of {legged.mass:.3g} kg"]
     if s is not None:
@@ -113,6 +113,8 @@ def world(cfg: LeggedExperimentConfig, legged) -> str:
                  (s.roll, "downhill to the left" if s.roll > 0 else "downhill to the right"))
                 if a != 0.0]
         parts.append("slope " + (", ".join(tilt) or "0 rad"))
+    if cfg.masses is not None:
+        parts.append(f"masses {cfg.masses.scale:g} times the model's")
     return " and ".join(parts) or "no change of the world"
 
 
@@ -169,6 +171,7 @@ def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int,
     t0 = time.perf_counter()
     run = learn_trot(legged, cycles=cycles, payload=p.fraction if p else 0.0,
                      slope=None if cfg.slope is None else (cfg.slope.angle, cfg.slope.roll),
+                     mass_scale=None if cfg.masses is None else cfg.masses.scale,
                      change=cycles + 10 if change is None else change, seed=seed,
                      learn=L.enabled,
                      plant=cfg.plant.simulator, gait=gait, controller=extra,

@@ -57,7 +57,13 @@ import numpy as np
 
 from feltool.errors import InputError
 from feltool.motion import spectral
-from feltool.walking.legged.model import LeggedModel, Payload, sloped, with_payload
+from feltool.walking.legged.model import (
+    LeggedModel,
+    Payload,
+    scaled_masses,
+    sloped,
+    with_payload,
+)
 from feltool.walking.legged.mujoco_stand import stand_mujoco
 from feltool.walking.legged.orbit import ReferenceCorrection, acquire_orbit
 from feltool.walking.legged.stand import StandLog, random_start, stand
@@ -224,12 +230,15 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                correction: ReferenceCorrection | None = None, acquire: int = 4,
                feedforward: PhaseFeedforward | None = None,
                controller: dict | None = None,
-               slope: tuple[float, float] | None = None) -> TrotLearning:
+               slope: tuple[float, float] | None = None,
+               mass_scale: float | None = None) -> TrotLearning:
     """Trot ``cycles`` cycles learning the feedforward in a world the controller's model does
     not know from the start of cycle ``change`` on: the robot carrying a payload of
     ``payload`` times its mass on its base (a point mass at its origin,
-    :class:`~feltool.walking.legged.model.Payload`; 0: none) and, with ``slope``, on a ground
-    inclined by ``(angle, roll)`` [rad] (:func:`~feltool.walking.legged.model.sloped`).
+    :class:`~feltool.walking.legged.model.Payload`; 0: none), with ``slope`` on a ground
+    inclined by ``(angle, roll)`` [rad] (:func:`~feltool.walking.legged.model.sloped`), with
+    ``mass_scale`` its bodies' masses and inertias that many times the model's
+    (:func:`~feltool.walking.legged.model.scaled_masses`).
 
     Args:
         legged: The robot (its feet those of ``gait.groups``).
@@ -264,7 +273,8 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                                  learned=feedforward, **extra)
     gait = ctl.gait
     load = None if payload == 0 else Payload(payload * legged.mass)
-    world = with_payload(legged, load)
+    world = legged if mass_scale is None else scaled_masses(legged, mass_scale)
+    world = with_payload(world, load)  # the payload's mass: a fraction of the model's
     world = world if slope is None else sloped(world, *slope)
     v0 = random_start(legged, np.random.default_rng(seed), start_speed)
     duration = gait.start + gait.ramp + 2.0 * (cycles + 2) * gait.period
@@ -275,8 +285,8 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                     plant=lambda t: world.model if ctl.cycle >= change else None, **common)
     else:
         gravity = None if slope is None else world.model.gravity.linear
-        changes = load is not None or slope is not None
-        log = stand_mujoco(legged, ctl, q0, payload=load, gravity=gravity,
+        changes = load is not None or slope is not None or mass_scale is not None
+        log = stand_mujoco(legged, ctl, q0, payload=load, gravity=gravity, mass_scale=mass_scale,
                            payload_from=(lambda t: ctl.cycle >= change) if changes else None,
                            **common)
     fb = np.sqrt((np.array(ctl.share_rms).reshape(-1, legged.nv - 6) ** 2).sum(axis=1))

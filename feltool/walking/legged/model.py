@@ -308,3 +308,17 @@ def sloped(legged: LeggedModel, angle: float, roll: float = 0.0) -> LeggedModel:
     return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
                        q0=legged.q0.copy(), name=f"{legged.name}+slope")
 
+
+def scaled_masses(legged: LeggedModel, scale: float) -> LeggedModel:
+    """A copy of ``legged`` with every body's mass and rotational inertia times ``scale`` [-],
+    the centres of mass where they are (the plant's model of a robot whose masses the known
+    model gets wrong: 1.2 is 20 % heavier than it thinks)."""
+    if not (np.isfinite(scale) and scale > 0):
+        raise ConfigError([("masses", f"a positive mass scale, got {scale}")])
+    model = pin.Model(legged.model)
+    for j in range(1, model.njoints):
+        own = model.inertias[j]
+        model.inertias[j] = pin.Inertia(own.mass * scale, own.lever, own.inertia * scale)
+    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
+                       q0=legged.q0.copy(), name=f"{legged.name}x{scale:g}")
+

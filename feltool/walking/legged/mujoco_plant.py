@@ -91,6 +91,8 @@ class LeggedMujoco:
         payload: A point mass on the base (:class:`Payload`), or None.
         gravity: The linear gravity [m/s^2] of the unknown world (a slope:
             :func:`~feltool.walking.legged.model.sloped`), or None: the known model's.
+        mass_scale: Every body's mass and rotational inertia times this in the unknown world
+            (:func:`~feltool.walking.legged.model.scaled_masses`), or None.
         floor: False: no floor (free flight).
 
     Attributes:
@@ -104,7 +106,8 @@ class LeggedMujoco:
                  timeconst: float | None = None, dampratio: float = DAMPRATIO,
                  solimp: tuple = SOLIMP, impratio: float = IMPRATIO,
                  noslip_iterations: int = 0, payload: Payload | None = None,
-                 gravity: np.ndarray | None = None, floor: bool = True):
+                 gravity: np.ndarray | None = None, mass_scale: float | None = None,
+                 floor: bool = True):
         mujoco = self._mj = import_mujoco()
         self.legged = legged
         path = solo12_urdf() if urdf is None else Path(urdf)
@@ -156,15 +159,27 @@ class LeggedMujoco:
         self.floor = self.model.geom("feltool_floor").id if floor else -1
         self.base = int(self.model.body(root.name).id)
         self.payload = payload
+        self.mass_scale = mass_scale
+        robot = [b for b in range(1, self.model.nbody) if self.model.body(b).name !=
+                 "feltool_payload"]
+        self._masses = (robot, self.model.body_mass[robot].copy(),
+                        self.model.body_inertia[robot].copy())
         self._f6 = np.zeros(6)
+        if mass_scale is not None:
+            self.carry(True)
 
     def carry(self, on: bool) -> None:
         """Put the unknown world this plant was compiled with on (``on``) or off: the payload
-        on the base or taken off (its mass 0), the gravity of a slope or the known model's: a
-        world that changes during a rollout."""
-        if self.payload is None and self.gravity is None:
-            raise ConfigError([("payload", "the plant was compiled without a payload or a "
-                                           "slope")])
+        on the base or taken off (its mass 0), the gravity of a slope or the known model's, the
+        bodies' masses scaled or as compiled: a world that changes during a rollout."""
+        if self.payload is None and self.gravity is None and self.mass_scale is None:
+            raise ConfigError([("payload", "the plant was compiled without a payload, a slope "
+                                           "or scaled masses")])
+        if self.mass_scale is not None:
+            robot, mass, inertia = self._masses
+            scale = self.mass_scale if on else 1.0
+            self.model.body_mass[robot] = mass * scale
+            self.model.body_inertia[robot] = inertia * scale
         if self.gravity is not None:
             self.model.opt.gravity[:] = self.gravity if on else self.legged.model.gravity.linear
         if self.payload is not None:
