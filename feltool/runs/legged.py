@@ -9,7 +9,7 @@
                          what ``feltool run --resume`` keeps (it runs the seeds without one)
     metrics.csv          one row per (seed, cycle): fb_total (the summed feedback [N m]),
                          fb_share_<motor> (each motor's RMS feedback share [N m]), t_start_s,
-                         t_end_s, changed (1 once the unknown world, payload or slope, is on)
+                         t_end_s, changed (1 once the unknown world, payload, slope or masses, is on)
     summary.json         per seed: walked, not_walking, cycles, fb before / at the change,
                          first, last, ratios, speed, contact statistics; the run's verdict
     params/seed-N.npz    the learned Fourier coefficients C (2M+1, nv), the coordinates'

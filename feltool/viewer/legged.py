@@ -1,7 +1,7 @@
 """A legged run's rollout as one HTML file: the robot's meshes (Pinocchio's MeshcatVisualizer,
 as :func:`feltool.viewer.html.record_html` draws them) moving along a seed's recorded
 configurations (``traces/seed-N.npz`` of :mod:`feltool.runs.legged`): the cycles around the
-world's change (payload, slope) and the last cycles."""
+world's change (payload, slope, masses) and the last cycles."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ def visual_robot(robot: str, urdf: Path | None):
 def write_legged_html(run_dir: Path, robot, seed: int | None = None,
                       path: Path | None = None) -> Path:
     """Write ``rollout.html`` (default ``run_dir/rollout.html``) for ``seed`` (default the
-    run's first): the cycles from one before the world's change (payload, slope), and the last
+    run's first): the cycles from one before the world's change (payload, slope, masses), and the last
     cycles."""
     from feltool.viewer.html import record_html
 
