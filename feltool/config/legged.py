@@ -303,8 +303,8 @@ class LeggedExperimentConfig(Strict):
         out = []
         worlds = [(name, w) for name, w in (("payload", self.payload), ("slope", self.slope),
                                             ("masses", self.masses)) if w is not None]
+        first, at = worlds[0] if worlds else (None, None)
         for name, w in worlds[1:]:
-            first, at = worlds[0]
             if w.cycle != at.cycle:
                 out.append((f"{name}.cycle", f"the world changes once: cycle {w.cycle} is not "
                                              f"{first}.cycle {at.cycle}"))
