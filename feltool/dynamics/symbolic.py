@@ -97,7 +97,10 @@ def _aba_expr(model: pin.Model, joints: list[Joint], q, v, tau):
     Every joint here has one degree of freedom, so ``D`` is a scalar and no matrix is inverted
     (a floating base is refused: its dynamics under contacts are the KKT on ``M``).
     """
-    _one_dof(joints, "the articulated-body algorithm")
+    multi = [jt.name for jt in joints if jt.nv != 1]
+    if multi:
+        raise InputError(f"the articulated-body algorithm is built for 1-DoF joints; joint "
+                         f"'{multi[0]}' is a floating base")
     nj = model.njoints
     armature = np.asarray(model.armature, dtype=float)
     xforms, vel, bias = _velocity_pass(model, joints, q, v)
@@ -128,13 +131,6 @@ def _aba_expr(model: pin.Model, joints: list[Joint], q, v, tau):
         qdd[jt.idx_v] = (u[i] - ca.dot(U[i], a_prime)) / D[i]
         acc[i] = a_prime + S * qdd[jt.idx_v]
     return ca.vertcat(*qdd)
-
-
-def _one_dof(joints: list[Joint], what: str) -> None:
-    multi = [jt.name for jt in joints if jt.nv != 1]
-    if multi:
-        raise InputError(f"{what} is built for 1-DoF joints; joint '{multi[0]}' is a "
-                         "floating base")
 
 
 def _tangent_jacobian(model: pin.Model, joints: list[Joint], q) -> ca.SX:
