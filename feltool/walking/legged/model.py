@@ -279,6 +279,13 @@ class Payload:
                            MIN_INERTIA * np.eye(3))
 
 
+def _world(legged: LeggedModel, model: pin.Model, name: str) -> LeggedModel:
+    """``legged`` with another dynamics ``model`` of the same joints and frames (a world the
+    known model does not know), named ``name``."""
+    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
+                       q0=legged.q0.copy(), name=name)
+
+
 def with_payload(legged: LeggedModel, payload: Payload | None) -> LeggedModel:
     """A copy of ``legged`` with ``payload`` added to its base joint's inertia (the plant's
     model of the unknown world), or ``legged`` itself when ``payload`` is None."""
@@ -286,8 +293,7 @@ def with_payload(legged: LeggedModel, payload: Payload | None) -> LeggedModel:
         return legged
     model = pin.Model(legged.model)
     model.inertias[1] = model.inertias[1] + payload.inertia()
-    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
-                       q0=legged.q0.copy(), name=f"{legged.name}+payload")
+    return _world(legged, model, f"{legged.name}+payload")
 
 
 def sloped(legged: LeggedModel, angle: float, roll: float = 0.0) -> LeggedModel:
@@ -305,8 +311,7 @@ def sloped(legged: LeggedModel, angle: float, roll: float = 0.0) -> LeggedModel:
     c, s = np.cos(roll), np.sin(roll)
     lateral = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])  # about x by roll
     model.gravity = pin.Motion(lateral @ pitch @ model.gravity.linear, np.zeros(3))
-    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
-                       q0=legged.q0.copy(), name=f"{legged.name}+slope")
+    return _world(legged, model, f"{legged.name}+slope")
 
 
 def scaled_masses(legged: LeggedModel, scale: float) -> LeggedModel:
@@ -319,6 +324,5 @@ def scaled_masses(legged: LeggedModel, scale: float) -> LeggedModel:
     for j in range(1, model.njoints):
         own = model.inertias[j]
         model.inertias[j] = pin.Inertia(own.mass * scale, own.lever, own.inertia * scale)
-    return LeggedModel(model=model, feet=dict(legged.feet), effort=legged.effort.copy(),
-                       q0=legged.q0.copy(), name=f"{legged.name}x{scale:g}")
+    return _world(legged, model, f"{legged.name}x{scale:g}")
 
