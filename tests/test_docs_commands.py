@@ -11,7 +11,7 @@ command), with these shortenings:
   per config; a sweep's as a one-value grid), a fresh ``--out``; a resumed run adds one cycle;
   ``--view`` closes at once; a legged config (``configs/legged/``, which has no ``backend``):
   seed 0, 8 cycles with the payload at cycle 2, the reference acquired in 2 rounds (about
-  20 s);
+  20 s), ``--view`` closing at once;
 * ``feltool robustness``: 2 cycles, seed 0, one learner, one scenario at two values;
 * ``feltool gait``: a fresh ``--out``, ``--view`` closes at once (its runs are seconds);
 * ``runs/<run>`` is a run made by an earlier command; ``[--option value]`` (optional) dropped.
@@ -141,9 +141,10 @@ class Runner:
         if cmd == "run" and "--resume" in args:
             return args + ["--cycles", "3", "--no-progress"]
         if cmd == "run" and any(a.startswith("configs/legged/") for a in args):
+            extra = ["--view-timeout", "0"] if "--view" in args or "--realtime" in args else []
             return args + ["--cycles", "8", "--seeds", "0", "--out", self.fresh("legged"),
                            "--no-progress", "--set", "payload.cycle=2",
-                           "--set", "walking.acquire=2"]
+                           "--set", "walking.acquire=2", *extra]
         if cmd == "run":
             out = self.fresh("run")
             seeds = "0" if self.run_dir else "0,3"  # the runs/<run> examples show seed 3

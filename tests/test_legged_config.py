@@ -103,9 +103,9 @@ def test_a_short_run_writes_its_directory_and_the_feedback_falls_after_the_chang
 
 
 def _check_plot_and_view(out: Path) -> None:
-    """``feltool plot`` and ``feltool view --html`` on the legged run directory: the figure
-    drawn again from metrics.csv, seed 1's rollout written; the live viewer refused, naming
-    --html."""
+    """``feltool plot`` and ``feltool view`` on the legged run directory: the figure drawn
+    again from metrics.csv, seed 1's rollout written, its clips played in the live viewer
+    (--cycles, which names a fixed-base run's cycles, refused)."""
     figure = out / "figures" / "legged_feedback.png"
     figure.unlink()
     plot = feltool("plot", str(out))
@@ -114,9 +114,13 @@ def _check_plot_and_view(out: Path) -> None:
     view = feltool("view", str(out), "--html", "--seed", "1")
     assert view.returncode == 0, view.stderr
     assert "world changes (cycle 2)" in (out / "rollout-seed1.html").read_text()
-    live = feltool("view", str(out), "--view-timeout", "0")
-    assert live.returncode == 2 and "--html writes its rollout.html" in live.stderr
-    assert "Traceback" not in plot.stderr + view.stderr + live.stderr
+    live = feltool("view", str(out), "--seed", "1", "--view-timeout", "4")
+    assert live.returncode == 0, live.stderr
+    assert "view: seed 1, world changes (cycle 2)" in live.stdout
+    assert "feltool viewer: stopped" in live.stdout
+    cycles = feltool("view", str(out), "--cycles", "last", "--view-timeout", "0")
+    assert cycles.returncode == 2 and "--cycles last: a legged run" in cycles.stderr
+    assert "Traceback" not in plot.stderr + view.stderr + live.stderr + cycles.stderr
 
 
 def test_a_slope_from_the_config_reaches_the_plant_and_the_run_says_so(tmp_path, capsys):
@@ -248,11 +252,47 @@ def test_a_urdf_robot_with_link_and_offset_feet_checks(tmp_path, capsys):
     assert "feet FL, FR, HL, HR" in capsys.readouterr().out
 
 
-def test_options_the_legged_run_does_not_take_exit_2(tmp_path, capsys):
-    for extra in (["--realtime"], ["--view"]):
-        assert main(["run", str(SHIPPED), "--out", str(tmp_path / "x"), "--cycles", "1",
-                     "--seeds", "0", *extra]) == 2
-        assert "legged" in capsys.readouterr().err
+def test_a_legged_run_streams_its_first_seed_to_the_live_viewer(tmp_path, capsys):
+    """``feltool run --view`` on a legged config: every cycle of the first seed reported by
+    the viewer's status line with the feedback metrics.csv records, the run then replayed
+    until --view-timeout; the drawing process drew frames of the robot."""
+    out = tmp_path / "run"
+    path = _config(tmp_path, walking__acquire=0)
+    code = main(["run", str(path), "--out", str(out), "--cycles", "3", "--seeds", "0",
+                 "--view", "--view-timeout", "1", "--no-progress"])
+    text = capsys.readouterr().out
+    assert code in (0, 1), text  # 3 cycles: the config's success bound may be missed
+    with (out / "metrics.csv").open() as fh:
+        fb = [float(r["fb_total"]) for r in csv.DictReader(fh)]
+    assert len(fb) == 3
+    assert f"view: seed 0: cycle 3/3, error feedback {fb[2]:.4g} N m" in text
+    assert "view: seed 0, last cycles" in text and "feltool viewer: stopped" in text
+
+
+def test_the_legged_stream_draws_frames_in_place():
+    """The stream's drawing process draws the cycles it is handed, each shifted to start above
+    the origin (the live camera's aim), its ghost with it."""
+    from feltool.viewer.legged import LeggedStream, in_place, visual_robot
+    from feltool.viewer.live import LiveViewer
+    from feltool.walking.legged.learn import learn_trot
+    from feltool.walking.legged.model import load_solo12
+
+    seen = []
+    with LiveViewer(visual_robot("example-robot-data:solo12", None), quiet=True) as viewer:
+        stream = LeggedStream(viewer, 1e-3, 2)
+        run = learn_trot(load_solo12(effort=2.7), cycles=2, payload=0.0, acquire=0,
+                         on_cycle=lambda *c: (seen.append(c), stream(*c)))
+        stream.close()
+    assert run.kind is None and len(seen) == 2
+    assert stream.frames_drawn > 0  # at most 30 a second, while the second cycle ran
+    _, _, q, q_d, _ = seen[1]
+    shifted, ghost = in_place(q, q_d)
+    assert np.allclose(shifted[0, :2], 0.0) and shifted[-1, 0] > 0.05  # it walks forward
+    assert np.allclose(ghost[:, :2] - shifted[:, :2], q_d[:, :2] - q[:, :2])
+    assert np.array_equal(shifted[:, 2:], q[:, 2:])
+
+
+def test_a_bad_resume_exits_2_and_makes_nothing(tmp_path, capsys):
     assert main(["run", str(SHIPPED), "--resume", str(tmp_path / "x")]) == 2
     assert "no run.json" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()

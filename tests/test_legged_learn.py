@@ -214,8 +214,11 @@ def test_fel_takes_a_payloads_feedback_away(solo, acquired, seed):
     """20 % of the mass from cycle 3: FEL brings the last of 12 cycles to at most 0.15 of the
     payload's cycle (the issue's bound, with 150 cycles), and it falls every cycle to cycle 8;
     without learning (seed 0) the feedback stays above 3 times the cycle before the change."""
-    on = learn_trot(solo, cycles=12, seed=seed, correction=acquired.correction)
+    seen = []
+    on = learn_trot(solo, cycles=12, seed=seed, correction=acquired.correction,
+                    on_cycle=lambda *cycle: seen.append(cycle))
     assert on.kind is None and len(on.feedback) == 12
+    _check_cycles_handed_on(seen, on)
     assert on.speed == pytest.approx(0.3, abs=0.01)
     assert on.feedback[3] > 3.0 * on.feedback[2]       # the payload's cycle
     assert on.feedback[-1] < 0.15 * on.feedback[3]     # 0.083 measured on seed 0
@@ -227,10 +230,34 @@ def test_fel_takes_a_payloads_feedback_away(solo, acquired, seed):
 
 def test_fel_takes_a_payloads_feedback_away_on_mujoco(solo, acquired):
     """The reference acquired on the rigid known model, MuJoCo's soft contacts as the plant."""
-    on = learn_trot(solo, cycles=12, seed=0, plant="mujoco", correction=acquired.correction)
+    seen = []
+    on = learn_trot(solo, cycles=12, seed=0, plant="mujoco", correction=acquired.correction,
+                    on_cycle=lambda *cycle: seen.append(cycle))
     assert on.kind is None and len(on.feedback) == 12
+    _check_cycles_handed_on(seen, on)
     assert on.feedback[3] > 3.0 * on.feedback[2]
     assert on.feedback[-1] < 0.15 * on.feedback[3]
+
+
+def _check_cycles_handed_on(seen: list, run) -> None:
+    """The live viewer's hook got every cycle once, in order, with the summed feedback the run
+    reports and every control update from the cycle's first touchdown to the next cycle's: the
+    rollout log's steps (their configurations the log's own) and the few updates touchdowns
+    triggered between them."""
+    times = np.array(run.controller.cycle_times)
+    assert [c[0] for c in seen] == list(range(len(run.feedback)))
+    handed = {}
+    for cycle, t, q, q_d, fb in seen:
+        assert fb == run.feedback[cycle]
+        assert t[0] == times[cycle, 0]  # it began at a touchdown's update
+        assert len(t) < 1.05 * (times[cycle, 1] - times[cycle, 0]) * 1000  # 1 kHz
+        assert q_d.shape == q.shape and np.abs(q_d[:, 7:] - q[:, 7:]).max() < 0.3
+        for tk, qk in zip(t, q, strict=True):
+            handed.setdefault(tk, []).append(qk)
+    logged = (run.log.t >= times[0, 0]) & (run.log.t < times[-1, 1] - 1e-3)
+    assert logged.sum() > 0.95 * (times[-1, 1] - times[0, 0]) * 1000
+    for tk, qk in zip(run.log.t[logged], run.log.q[logged], strict=True):
+        assert any(np.array_equal(qk, x) for x in handed[tk]), tk
 
 
 def test_an_unknown_plant_is_refused(solo):

@@ -25,18 +25,14 @@ def legged_raw(config: str, overrides: list[str]) -> tuple[Path, dict[str, Any]]
     return (path, raw) if is_legged(raw) else None
 
 
-#: ``feltool run`` options a legged run does not take yet, and why
-_REFUSED = {"view": "the live viewer does not show legged robots yet",
-            "zmq_url": "the live viewer does not show legged robots yet",
-            "realtime": "the live viewer does not show legged robots yet"}
-
-
 def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any],
                        out_dir: Path | None = None, resume: bool = False) -> int:
     """``feltool run`` on a legged config: exit 0 when every seed trotted (or walked) physically
     through every cycle and met ``success:``, 1 otherwise, 2 on bad input, 130 / 143 when
     interrupted (the finished seeds kept for ``--resume``). With ``resume``: continue the
-    interrupted run in ``out_dir``."""
+    interrupted run in ``out_dir``. With ``--view`` (``--zmq-url``, ``--realtime``): the first
+    seed it runs streamed live to meshcat (:class:`~feltool.viewer.legged.LeggedStream`), then
+    the run replayed until Ctrl-C or ``--view-timeout``."""
     from feltool.cli.common import progress_mode
     from feltool.config.legged import parse_legged_config
     from feltool.runs.legged import (
@@ -48,9 +44,6 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     )
     from feltool.runs.runstate import default_out_dir
 
-    for option, why in _REFUSED.items():
-        if getattr(args, option, None):
-            raise InputError(f"--{option.replace('_', '-')}: {why}")
     cfg = parse_legged_config(raw, str(path))
     bar, lines = progress_mode(args)
     if args.workers not in (None, 1):
@@ -63,15 +56,47 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     out_dir = out_dir or default_out_dir(cfg.name)
     gait = "walk" if cfg.walking.walk else "trot"
     print(f"feltool: legged {gait}, {cfg.plant.simulator} plant (one seed at a time)", flush=True)
-    with _sigterm_interrupts():
-        summary = run_legged(cfg, raw, path, out_dir, legged=legged, resume=resume,
-                             progress=sys.stderr if bar or lines else None)
-    print_summary(summary, out_dir)
-    if args.html:
-        from feltool.viewer.legged import visual_robot, write_legged_html
+    viewer = stream = None
+    if args.view or args.zmq_url or args.realtime:
+        from feltool.cli.view import exit_on_sigterm
+        from feltool.viewer.legged import visual_robot
+        from feltool.viewer.live import LiveViewer
 
-        robot = visual_robot(cfg.robot, cfg.urdf_path(path.parent))
-        print(f"  rollout: {write_legged_html(out_dir, robot)}")
+        exit_on_sigterm()  # after the run too: the viewer's server is stopped on SIGTERM
+        viewer = LiveViewer(visual_robot(cfg.robot, cfg.urdf_path(path.parent)),
+                            zmq_url=args.zmq_url)
+    try:
+        if viewer is not None:
+            from feltool.runs.legged import finished_seeds
+            from feltool.viewer.legged import LeggedStream
+
+            done = finished_seeds(out_dir, cfg.seed_list) if resume else {}
+            first = next((s for s in cfg.seed_list if s not in done), cfg.seed_list[0])
+            stream = LeggedStream(viewer, 1.0 / cfg.sim.rate_hz, cfg.sim.cycles,
+                                  realtime=args.realtime, label=f"seed {first}")
+        with _sigterm_interrupts():
+            try:
+                summary = run_legged(cfg, raw, path, out_dir, legged=legged, resume=resume,
+                                     progress=sys.stderr if bar or lines else None,
+                                     on_cycle=stream)
+            finally:
+                if stream is not None:
+                    stream.close()
+        print_summary(summary, out_dir)
+        if args.html:
+            from feltool.viewer.legged import visual_robot, write_legged_html
+
+            robot = visual_robot(cfg.robot, cfg.urdf_path(path.parent))
+            print(f"  rollout: {write_legged_html(out_dir, robot)}")
+        if viewer is not None:  # the page stays up after the run: replay what it learned
+            from feltool.cli.view import keep_viewing
+            from feltool.viewer.legged import replay_legged
+
+            keep_viewing(viewer, lambda left: replay_legged(viewer, out_dir, timeout_s=left),
+                         args.view_timeout)
+    finally:
+        if viewer is not None:
+            viewer.close()
     return exit_code(summary)
 
 

@@ -90,7 +90,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             print(f"  rollout: {write_rollout_html(exp.robot, out_dir)}")
         if viewer is not None:  # the page stays up after the run: replay what it learned
-            keep_viewing(viewer, out_dir, None, ["first", "last"], 0, args.view_timeout)
+            from feltool.viewer.rollout import replay
+
+            keep_viewing(viewer, lambda left: replay(viewer, out_dir, timeout_s=left),
+                         args.view_timeout)
     finally:
         if viewer is not None:
             viewer.close()

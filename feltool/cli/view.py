@@ -5,25 +5,25 @@ from __future__ import annotations
 import argparse
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from feltool.cli.common import subcommand
 
 
-def keep_viewing(viewer, run_dir: Path, seed: int | None, cycles: list[str], loops: int,
-                  timeout_s: float | None) -> None:
-    """Replay recorded cycles ``loops`` times (0: for ever), then keep the server up showing
-    the last pose; until Ctrl-C or ``timeout_s`` in [s] (0: return at once). An interrupt here
-    loses nothing: the run is already written."""
-    from feltool.viewer.rollout import replay
-
+def keep_viewing(viewer, play: Callable[[float | None], object],
+                 timeout_s: float | None) -> None:
+    """Replay a run (``play(timeout_s)``: :func:`~feltool.viewer.rollout.replay` or
+    :func:`~feltool.viewer.legged.replay_legged` with their loops), then keep the server up
+    showing the last pose; until Ctrl-C or ``timeout_s`` in [s] (0: return at once). An
+    interrupt here loses nothing: the run is already written."""
     if timeout_s is not None and timeout_s <= 0:
         return
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     until = "Ctrl-C" if timeout_s is None else f"Ctrl-C or {timeout_s:g} s"
     try:  # announced inside: a Ctrl-C right after the line is the one the line asks for
         print(f"feltool viewer: serving {viewer.url} until {until}", flush=True)
-        replay(viewer, run_dir, seed, cycles, loops=loops, timeout_s=timeout_s)
+        play(timeout_s)
         while deadline is None or time.monotonic() < deadline:
             time.sleep(0.2 if deadline is None else min(0.2, deadline - time.monotonic()))
     except KeyboardInterrupt:
@@ -60,28 +60,45 @@ def cmd_view(args: argparse.Namespace) -> int:
                                  path=args.run_dir / name))
         return 0
     from feltool.viewer.live import LiveViewer
+    from feltool.viewer.rollout import replay
 
     exit_on_sigterm()
     with LiveViewer(robot, zmq_url=args.zmq_url) as viewer:
-        keep_viewing(viewer, args.run_dir, seed, cycles, args.loops, args.view_timeout)
+        keep_viewing(viewer, lambda left: replay(viewer, args.run_dir, seed, cycles,
+                                                 loops=args.loops, timeout_s=left),
+                     args.view_timeout)
     return 0
 
 
 def view_legged(args: argparse.Namespace) -> int:
-    """``feltool view RUN_DIR --html`` on a legged run: its rollout.html (the seed's cycles
-    around the world's change and its last ones); the live viewer does not show legged robots
-    yet."""
+    """``feltool view RUN_DIR`` on a legged run: its clips (the seed's cycles around the world's
+    change and its last ones) in the live viewer, each in place; with ``--html`` its
+    rollout.html."""
     from feltool.errors import InputError
     from feltool.runs.legged import stored_config
-    from feltool.viewer.legged import visual_robot, write_legged_html
+    from feltool.viewer.legged import legged_clips, replay_legged, visual_robot, write_legged_html
+    from feltool.viewer.rollout import CYCLES, parse_cycles
 
-    if not args.html:
-        raise InputError(f"{args.run_dir}: the live viewer does not show legged robots yet; "
-                         f"feltool view {args.run_dir} --html writes its rollout.html")
+    if parse_cycles(args.cycles) != list(CYCLES):
+        raise InputError(f"--cycles {args.cycles}: a legged run shows the cycles around its "
+                         "world's change and its last ones (leave out --cycles)")
+    if args.zmq_url is not None:
+        from feltool.viewer.live import check_zmq_url
+
+        check_zmq_url(args.zmq_url)
     cfg, base_dir = stored_config(args.run_dir)
+    seed = legged_clips(args.run_dir, args.seed)[0]  # bad input fails first
     robot = visual_robot(cfg.robot, cfg.urdf_path(base_dir))
-    name = "rollout.html" if args.seed is None else f"rollout-seed{args.seed}.html"
-    print(write_legged_html(args.run_dir, robot, args.seed, path=args.run_dir / name))
+    if args.html:
+        name = "rollout.html" if args.seed is None else f"rollout-seed{args.seed}.html"
+        print(write_legged_html(args.run_dir, robot, args.seed, path=args.run_dir / name))
+        return 0
+    from feltool.viewer.live import LiveViewer
+
+    exit_on_sigterm()
+    with LiveViewer(robot, zmq_url=args.zmq_url, ghost=False) as viewer:
+        keep_viewing(viewer, lambda left: replay_legged(viewer, args.run_dir, seed, args.loops,
+                                                        timeout_s=left), args.view_timeout)
     return 0
 
 

@@ -161,9 +161,10 @@ def acquire_reference(cfg: LeggedExperimentConfig, legged):
 
 
 def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int,
-             correction=None) -> dict[str, Any]:
+             correction=None, on_cycle=None) -> dict[str, Any]:
     """One seed's learning trot on the reference ``correction`` (:func:`acquire_reference`);
-    its metrics rows, params and summary entry."""
+    its metrics rows, params and summary entry. ``on_cycle``: :func:`~feltool.walking.legged
+    .learn.learn_trot`'s hook (the live viewer)."""
     from feltool.walking.legged.learn import PhaseFeedforward, learn_trot
 
     L, p, change = cfg.learning, cfg.payload, cfg.change_cycle
@@ -178,7 +179,7 @@ def run_seed(cfg: LeggedExperimentConfig, legged, seed: int, cycles: int,
                      rate_hz=cfg.sim.rate_hz, impact_window=cfg.sim.impact_window_s,
                      start_speed=cfg.sim.start_velocity_scale,
                      feedforward=PhaseFeedforward(L.harmonics, legged.nv, L.rate),
-                     correction=correction, acquire=0)
+                     correction=correction, acquire=0, on_cycle=on_cycle)
     wall = time.perf_counter() - t0
     ctl, fb = run.controller, np.asarray(run.feedback, float)
     n = len(fb)
@@ -248,14 +249,15 @@ def refuse_taken(out_dir: Path) -> None:
 def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_dir: Path,
                seeds: list[int] | None = None, cycles: int | None = None,
                progress: TextIO | None = None, legged=None,
-               resume: bool = False) -> dict[str, Any]:
+               resume: bool = False, on_cycle=None) -> dict[str, Any]:
     """Run every seed one after another into ``out_dir`` (new or empty: a run directory
     belongs to one command), write it, return the summary (``legged``: the config's robot,
     already loaded by :func:`load_legged_robot`). With ``resume``: continue the interrupted
     run in ``out_dir`` made with the same config, seeds and cycles (else an
     :class:`InputError` naming what differs), keeping its finished seeds and running the
     others. Ctrl-C or SIGTERM between control steps: the finished seeds are kept, the run
-    marked interrupted (:class:`~feltool.runs.checkpoint.Interrupted`)."""
+    marked interrupted (:class:`~feltool.runs.checkpoint.Interrupted`). ``on_cycle``: the
+    first seed run here calls it after each cycle (:func:`run_seed`; the live viewer)."""
     seeds = list(seeds if seeds is not None else cfg.seed_list)
     cycles = cycles or cfg.sim.cycles
     base_dir = source.parent if source is not None else None
@@ -310,7 +312,8 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
                           "run directory", file=progress, flush=True)
                 continue
             r = run_seed(cfg, legged, seed, cycles,
-                         None if acquired is None else acquired.correction)
+                         None if acquired is None else acquired.correction,
+                         on_cycle=on_cycle if seed == todo[0] else None)
             results.append(r)
             save_npz(out_dir / "params" / f"seed-{seed}.npz", r["params"])
             save_npz(out_dir / "traces" / f"seed-{seed}.npz", r.pop("trace"))

@@ -1,17 +1,35 @@
-"""A legged run's rollout as one HTML file: the robot's meshes (Pinocchio's MeshcatVisualizer,
-as :func:`feltool.viewer.html.record_html` draws them) moving along a seed's recorded
-configurations (``traces/seed-N.npz`` of :mod:`feltool.runs.legged`): the cycles around the
-world's change (payload, slope, masses) and the last cycles."""
+"""A legged run in the browser: streamed live while it learns, saved as one HTML file, and
+replayed.
+
+* :func:`write_legged_html`: the robot's meshes (Pinocchio's MeshcatVisualizer, as
+  :func:`feltool.viewer.html.record_html` draws them) moving along a seed's recorded
+  configurations (``traces/seed-N.npz`` of :mod:`feltool.runs.legged`): the cycles around the
+  world's change (payload, slope, masses) and the last cycles.
+* :class:`LeggedStream`: the learning trot's ``on_cycle`` hook
+  (:class:`~feltool.walking.legged.learn.CycleFrames`) feeding a
+  :class:`~feltool.viewer.rollout.LiveStream`: the newest cycle, the robot as simulated and a
+  ghost at its desired configuration.
+* :func:`replay_legged`: the HTML file's clips in the live viewer.
+
+The live viewer's camera is aimed once, at the robot's base at the origin, so whatever it shows
+is shown *in place*: each clip (a cycle streamed live, or a few recorded cycles) shifted
+horizontally so that its base starts at the origin, as on a treadmill (the HTML page's camera
+takes in the whole clip instead).
+"""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
 from feltool.errors import ConfigError, InputError
+from feltool.runs.legged import trace
 from feltool.runs.rundir import load_npz, read_json
+from feltool.runs.runstate import check_run_dir
+from feltool.viewer.rollout import LiveStream, play_clips
 
 #: Cycles shown in each clip
 CLIP_CYCLES = 3
@@ -37,14 +55,13 @@ def visual_robot(robot: str, urdf: Path | None):
     return SimpleNamespace(model=model, visual_model=visual, name=Path(urdf).stem)
 
 
-def write_legged_html(run_dir: Path, robot, seed: int | None = None,
-                      path: Path | None = None) -> Path:
-    """Write ``rollout.html`` (default ``run_dir/rollout.html``) for ``seed`` (default the
-    run's first): the cycles from one before the world's change (payload, slope, masses), and the last
-    cycles."""
-    from feltool.viewer.html import record_html
-
-    run_dir = Path(run_dir)
+def legged_clips(run_dir: Path, seed: int | None = None
+                 ) -> tuple[int, float, dict[str, np.ndarray], str]:
+    """``(seed, dt [s], {clip name: q (n, nq)}, title)`` of a legged run directory's ``seed``
+    (default the run's first): the cycles from one before the world's change (payload, slope,
+    masses), and the last cycles; the whole rollout when the seed stopped before its first
+    cycle."""
+    run_dir = check_run_dir(run_dir)  # a running, interrupted or failed run is not shown
     summary = read_json(run_dir / "summary.json")
     seeds = [s["seed"] for s in summary.get("seeds", [])]
     seed = seeds[0] if seed is None and seeds else seed
@@ -68,5 +85,75 @@ def write_legged_html(run_dir: Path, robot, seed: int | None = None,
                 clips[name] = q[keep]
     if not clips:  # a seed that stopped before its first cycle: the whole rollout
         clips["rollout"] = q
-    title = f"{summary.get('config', run_dir.name)}, seed {seed}"
+    return seed, dt, clips, f"{summary.get('config', run_dir.name)}, seed {seed}"
+
+
+def write_legged_html(run_dir: Path, robot, seed: int | None = None,
+                      path: Path | None = None) -> Path:
+    """Write ``rollout.html`` (default ``run_dir/rollout.html``) for ``seed`` (default the
+    run's first): the clips of :func:`legged_clips`."""
+    from feltool.viewer.html import record_html
+
+    run_dir = Path(run_dir)
+    _, dt, clips, title = legged_clips(run_dir, seed)
     return record_html(robot, clips, dt, path or run_dir / "rollout.html", title=title)
+
+
+def in_place(q: np.ndarray, *more: np.ndarray) -> list[np.ndarray]:
+    """``q`` ``(n, nq)`` (and ``more`` arrays of the same shape) shifted horizontally by one
+    offset [m], so that ``q``'s first base position is above the origin (module docstring)."""
+    shift = -q[0, :2]
+    out = []
+    for x in (q, *more):
+        x = np.array(x, float)
+        x[:, :2] += shift
+        out.append(x)
+    return out
+
+
+class LeggedStream:
+    """The learning trot's ``on_cycle`` hook (:func:`~feltool.walking.legged.learn.learn_trot`)
+    that streams each cycle, resampled to uniform steps of ``dt`` [s] (the control updates
+    are uneven at events) and played in place, to a :class:`LiveStream` on ``viewer``, the
+    ghost at the desired configuration; the status line counts cycles from 1.
+
+    Args:
+        viewer: The live viewer (with a ghost).
+        dt: The control step [s].
+        cycles: The cycles the seed runs (for the status line).
+        realtime: Play every cycle in full at wall-clock speed.
+        label: The status line's prefix, e.g. ``"seed 0"``.
+    """
+
+    def __init__(self, viewer, dt: float, cycles: int | None = None, *,
+                 realtime: bool = False, label: str = ""):
+        self.dt = float(dt)
+        self.stream = LiveStream(viewer, dt, cycles, realtime=realtime, label=label,
+                                 out=sys.stdout)  # today's stdout, not the one at import
+
+    def __call__(self, cycle: int, t: np.ndarray, q: np.ndarray, q_d: np.ndarray,
+                 fb: float) -> None:
+        nq = q.shape[1]
+        order = np.argsort(t, kind="stable")  # an impact's window can put an update late
+        both = trace(t[order], np.hstack([q, q_d])[order], 1.0 / self.dt)["q"]
+        q, q_d = in_place(both[:, :nq], both[:, nq:])
+        self.stream(cycle + 1, SimpleNamespace(q=q), q_d, fb)
+
+    @property
+    def frames_drawn(self) -> int:
+        """Frames drawn so far (the drawing process's count is known after :meth:`close`)."""
+        return self.stream.frames_drawn
+
+    def close(self) -> None:
+        self.stream.close()
+
+
+def replay_legged(viewer, run_dir: Path, seed: int | None = None, loops: int = 0,
+                  out=sys.stdout, timeout_s: float | None = None) -> int:
+    """Play :func:`legged_clips` in the live viewer at wall-clock speed, each in place,
+    ``loops`` times (0: until interrupted, or until ``timeout_s`` [s] has passed). Returns the
+    seed played."""
+    seed, dt, clips, _ = legged_clips(run_dir, seed)
+    play_clips(viewer, {name: (in_place(q)[0], None) for name, q in clips.items()}, dt,
+               f"seed {seed}", loops, out, timeout_s)
+    return seed

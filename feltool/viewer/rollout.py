@@ -32,8 +32,8 @@ from feltool.errors import InputError
 from feltool.runs.rundir import damaged, load_npz, read_json
 from feltool.runs.runstate import check_run_dir
 
-__all__ = ["CYCLES", "LiveStream", "load_rollouts", "parse_cycles", "replay", "run_robot",
-           "write_rollout_html"]
+__all__ = ["CYCLES", "LiveStream", "load_rollouts", "parse_cycles", "play_clips", "replay",
+           "run_robot", "write_rollout_html"]
 
 CYCLES = ("first", "last")  # the cycles a run directory keeps traces of
 STATUS_EVERY_S = 1.0  # the terminal status line is printed at most this often [s]
@@ -276,19 +276,28 @@ def replay(viewer, run_dir: Path, seed: int | None = None, cycles: Sequence[str]
     """Play recorded cycles in the live viewer at wall-clock speed, ``loops`` times (0: until
     interrupted, or until ``timeout_s`` in [s] has passed). Returns the seed played."""
     seed, dt, clips = load_rollouts(run_dir, seed, cycles)
+    play_clips(viewer, clips, dt, f"seed {seed}", loops, out, timeout_s)
+    return seed
+
+
+def play_clips(viewer, clips: dict[str, tuple[np.ndarray, np.ndarray | None]], dt: float,
+               label: str, loops: int = 0, out=sys.stdout,
+               timeout_s: float | None = None) -> None:
+    """Play ``clips`` (name -> system and ghost configurations, the ghost None for none) one
+    after the other at wall-clock speed, ``dt`` [s] a frame, ``loops`` times (0: until
+    interrupted, or until ``timeout_s`` [s] has passed), each announced with ``label``."""
     stream = LiveStream(viewer, dt, realtime=True, out=None)
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     done = 0
     while loops <= 0 or done < loops:
         for name, (q, qf) in clips.items():
             if deadline is not None and time.monotonic() >= deadline:
-                return seed
+                return
             if out is not None:
-                print(f"view: seed {seed}, {name}", file=out, flush=True)
+                print(f"view: {label}, {name}", file=out, flush=True)
             stream.play(q, qf)
             time.sleep(0.5)
         done += 1
-    return seed
 
 
 def run_robot(run_dir: Path):

@@ -51,6 +51,7 @@ motors spend on feedback.
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -203,6 +204,40 @@ class LearningTrotController(TrotController):
         return alloc
 
 
+def summed_feedback(shares) -> np.ndarray:
+    """Each cycle's summed feedback [N m] from its motors' RMS feedback shares ``(cycles,
+    motors)`` (module docstring): their Euclidean norm."""
+    return np.sqrt((np.asarray(shares, float) ** 2).sum(axis=1))
+
+
+@dataclass
+class CycleFrames:
+    """An observer of the learning trot's control updates (``TrotController.observer``) that
+    hands every completed cycle to ``on_cycle(cycle, t, q, q_d, fb)``: the cycle's number (0:
+    the first), its control updates' times ``(n,)`` [s], configurations and desired
+    configurations ``(n, nq)``, and its summed feedback [N m] (as :func:`learn_trot` reports
+    it). The updates before the first cycle (standing, the speed ramp) are not handed on."""
+
+    controller: LearningTrotController
+    on_cycle: Callable[[int, np.ndarray, np.ndarray, np.ndarray, float], None]
+
+    def __post_init__(self):
+        self._rows: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._done = 0
+
+    def __call__(self, t: float, q: np.ndarray, v: np.ndarray, feet, allocation) -> None:
+        ctl = self.controller
+        if len(ctl.share_rms) > self._done:  # this update began the next cycle
+            self._done = len(ctl.share_rms)
+            if self._rows:
+                ts, qs, qds = (np.array(x) for x in zip(*self._rows, strict=True))
+                self.on_cycle(self._done - 1, ts, qs, qds,
+                              float(summed_feedback(ctl.share_rms[-1:])[0]))
+            self._rows = []
+        if ctl.cycle >= 0:
+            self._rows.append((t, np.array(q, float), np.array(ctl.q_d, float)))
+
+
 @dataclass
 class TrotLearning:
     """A learning trot's outcome (:func:`learn_trot`).
@@ -231,7 +266,9 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                feedforward: PhaseFeedforward | None = None,
                controller: dict | None = None,
                slope: tuple[float, float] | None = None,
-               mass_scale: float | None = None) -> TrotLearning:
+               mass_scale: float | None = None,
+               on_cycle: Callable[[int, np.ndarray, np.ndarray, np.ndarray, float], None]
+               | None = None) -> TrotLearning:
     """Trot ``cycles`` cycles learning the feedforward in a world the controller's model does
     not know from the start of cycle ``change`` on: the robot carrying a payload of
     ``payload`` times its mass on its base (a point mass at its origin,
@@ -258,6 +295,8 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
         controller: :class:`~feltool.walking.legged.trot.TrotController`'s other arguments
             (gains), for the acquisition and the learning alike (a biped's walk:
             :func:`~feltool.walking.legged.walk.biped_gains`).
+        on_cycle: Called after every completed cycle with its control updates
+            (:class:`CycleFrames`; the live viewer's hook).
     """
     if plant not in ("pinocchio", "mujoco"):
         raise InputError(f"plant {plant!r}: 'pinocchio' or 'mujoco'")
@@ -272,6 +311,8 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                                  learn_from=0 if learn else np.iinfo(np.int64).max,
                                  learned=feedforward, **extra)
     gait = ctl.gait
+    if on_cycle is not None:
+        ctl.observer = CycleFrames(ctl, on_cycle)
     load = None if payload == 0 else Payload(payload * legged.mass)
     world = legged if mass_scale is None else scaled_masses(legged, mass_scale)
     world = with_payload(world, load)  # the payload's mass: a fraction of the model's
@@ -289,7 +330,7 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
         log = stand_mujoco(legged, ctl, q0, payload=load, gravity=gravity, mass_scale=mass_scale,
                            payload_from=(lambda t: ctl.cycle >= change) if changes else None,
                            **common)
-    fb = np.sqrt((np.array(ctl.share_rms).reshape(-1, legged.nv - 6) ** 2).sum(axis=1))
+    fb = summed_feedback(np.array(ctl.share_rms).reshape(-1, legged.nv - 6))
     half = len(log.t) // 2
     speed = float((log.q[-1, 0] - log.q[half, 0]) / max(log.t[-1] - log.t[half], 1e-300))
     return TrotLearning(fb, ctl, log, log.kind, speed)
