@@ -484,3 +484,50 @@ def test_panda_and_ur5_appear_with_their_meshes(browser, config, tmp_path):
         assert meshes[f"ghost/{geom.name}"] == ("BufferGeometry", geom.geometry.num_vertices)
     assert not {kind for kind, _ in meshes.values()} & {"BoxGeometry", "CylinderGeometry",
                                                         "SphereGeometry"}
+
+
+@needs_chromium
+def test_a_legged_run_replays_in_the_browser_a_moving_robot(browser, tmp_path):
+    """``feltool view`` on a legged run (Solo-12, 3 cycles): the canvas shows the robot (the
+    pixels that vanish when it is hidden) and the robot moves between two screenshots."""
+    out = tmp_path / "legged"
+    run = feltool("run", str(ROOT / "configs" / "legged" / "solo12_trot.yaml"), "--seeds", "0",
+                  "--cycles", "3", "--set", "walking.acquire=0", "--out", str(out),
+                  "--no-progress")
+    assert run.returncode in (0, 1) and (out / "summary.json").is_file(), run.stderr
+    proc = subprocess.Popen([sys.executable, "-m", "feltool.cli", "view", str(out),
+                             "--view-timeout", "300"], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=ENV,
+                            start_new_session=True)
+    try:
+        url, lines = _wait_for_url(proc)
+        page = browser.new_page(viewport={"width": 800, "height": 600})
+        page.goto(url)
+        page.evaluate("viewer.handle_command({type: 'set_property', path: '/Axes', "
+                      "property: 'visible', value: false})")
+        canvas = page.locator("canvas").first
+        page.wait_for_timeout(3000)  # the scene loaded and the replay under way
+
+        def robot_hidden(hidden: bool) -> np.ndarray:
+            page.evaluate("viewer.handle_command({type: 'set_property', path: "
+                          f"'/meshcat/feltool', property: 'visible', value: {str(not hidden).lower()}}})")
+            page.wait_for_timeout(300)
+            return _png(canvas.screenshot())
+
+        deadline = time.monotonic() + 60  # a generous bound, not a timing claim
+        while True:
+            a, empty = robot_hidden(False), robot_hidden(True)
+            robot = np.abs(a.astype(int) - empty.astype(int)).sum(axis=2) > 30
+            b = robot_hidden(False)
+            moved = (np.abs(a.astype(int) - b.astype(int)).sum(axis=2) > 30) & _dilate(robot)
+            if (robot.sum() > 300 and moved.sum() > 50) or time.monotonic() > deadline:
+                break
+        assert robot.sum() > 300, f"only {robot.sum()} pixels of the robot"
+        assert moved.sum() > 50, "the robot did not move between two screenshots"
+        page.close()
+        os.killpg(proc.pid, signal.SIGINT)
+        rest, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 0, "".join(lines) + rest
+        assert "view: seed 0, last cycles" in "".join(lines) + rest
+    finally:
+        _stop(proc)
