@@ -100,3 +100,22 @@ def assert_written_gait_walks_from_elsewhere(gait: Path, tmp_path: Path, monkeyp
     for seed in summary["seeds"]:  # every step of every cycle walked
         assert seed["walking"]["walked"] is True and seed["walking"]["not_walking"] is None
         assert seed["walking"]["steps"] == seed["cycles"] == 6
+
+
+def edited_solo_urdf(directory: Path, extra_base_mass: float = 0.0) -> Path:
+    """Solo-12's URDF as someone might publish their own quadruped, written to ``directory``:
+    every joint renamed (``my_`` before its name), the base ``extra_base_mass`` [kg] heavier."""
+    import xml.etree.ElementTree as ET
+
+    import example_robot_data as erd
+
+    root = ET.parse(erd.load("solo12").urdf).getroot()
+    for link in root.iter("link"):
+        if link.get("name") == "base_link":
+            mass = link.find("inertial/mass")
+            mass.set("value", str(float(mass.get("value")) + extra_base_mass))
+    text = re.sub(r'(joint name="|joint=")([A-Z]{2}_)', r"\1my_\2",
+                  ET.tostring(root, encoding="unicode"))
+    path = Path(directory) / "my_quadruped.urdf"
+    path.write_text(text)
+    return path

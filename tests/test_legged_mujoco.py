@@ -17,6 +17,8 @@ from feltool.walking.legged.mujoco_plant import LeggedMujoco
 from feltool.walking.legged.mujoco_stand import stand_mujoco
 from feltool.walking.legged.trot import PAIRS, TrotController, TrotGait
 
+from .conftest import edited_solo_urdf
+
 mujoco = pytest.importorskip("mujoco")
 
 
@@ -172,3 +174,48 @@ def test_bad_plant_inputs_are_named(solo):
     with pytest.raises(ConfigError, match="timestep"):
         stand_mujoco(solo, StandingController(solo, q0), q0, duration=0.01,
                      plant=LeggedMujoco(solo, timestep=1e-3))
+
+
+@pytest.mark.parametrize("robot", ["urdf", "talos_legs"])
+def test_mujoco_compiles_the_known_models_robot_whatever_it_was_loaded_from(robot, tmp_path):
+    """Any legged model, not Solo-12's file: a URDF of one's own (renamed joints, a heavier
+    base) and example-robot-data's Talos legs (its URDF is the whole robot, 44 kg more). MuJoCo's
+    mass is the model's and its accelerations are ``pin.aba``'s at a random state (1e-8)."""
+    from feltool.walking.legged.model import load_legged_urdf, load_talos_legs
+
+    if robot == "urdf":
+        legged = load_legged_urdf(edited_solo_urdf(tmp_path, extra_base_mass=1.0),
+                                  {f: {"frame": f"{f}_FOOT"} for f in ("FL", "FR", "HL", "HR")})
+        assert legged.motors[0].startswith("my_")
+        assert legged.mass == pytest.approx(load_solo12().mass + 1.0, abs=1e-12)
+    else:
+        legged = load_talos_legs()
+    p = LeggedMujoco(legged, floor=False)
+    assert p.model.body_mass.sum() == pytest.approx(legged.mass, rel=1e-12)
+    q, v, rng = _random_state(legged, 3)
+    u = rng.uniform(-1.0, 1.0, legged.nv - 6)
+    p.set_state(q, v)
+    p.data.qfrc_applied[:] = p.generalized(u)
+    mujoco.mj_forward(p.model, p.data)
+    a = pin.aba(legged.model, legged.data, q, v, np.r_[np.zeros(6), u])
+    np.testing.assert_allclose(p.acceleration(), a, atol=1e-8 * max(1.0, np.abs(a).max()))
+    np.testing.assert_allclose(p.foot_points(), legged.foot_positions(q), atol=1e-14)
+
+
+def test_a_joint_mujoco_cannot_have_is_refused_naming_it():
+    """A spherical joint (Pinocchio's JointModelSpherical) in a legged model: MuJoCo's plant
+    refuses it, naming the joint, before anything is compiled."""
+    from feltool.errors import RobotError
+    from feltool.walking.legged.model import legged_model
+
+    m = pin.Model()
+    root = m.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "root")
+    m.appendBodyToJoint(root, pin.Inertia.FromBox(1.0, 0.2, 0.1, 0.1), pin.SE3.Identity())
+    ball = m.addJoint(root, pin.JointModelSpherical(), pin.SE3(np.eye(3), np.array([0, 0, -0.1])),
+                      "hip_ball")
+    m.appendBodyToJoint(ball, pin.Inertia.FromCylinder(0.2, 0.01, 0.2), pin.SE3.Identity())
+    m.addFrame(pin.Frame("toe", ball, pin.SE3(np.eye(3), np.array([0, 0, -0.2])),
+                         pin.FrameType.OP_FRAME))
+    legged = legged_model(m, {"toe": {"frame": "toe"}}, effort=1.0)
+    with pytest.raises(RobotError, match="joint 'hip_ball' \\(JointModelSpherical\\)"):
+        LeggedMujoco(legged, floor=False)

@@ -1,15 +1,20 @@
-r"""A legged robot on a free flyer compiled by MuJoCo: the plant of the legged loop in MuJoCo
+r"""A legged robot on a free flyer in MuJoCo: the plant of the legged loop in MuJoCo
 (:func:`~feltool.walking.legged.mujoco_stand.stand_mujoco`).
 
-The same URDF the known model (Pinocchio) reads is compiled by MuJoCo with the settings of
-:mod:`feltool.robot.mujoco`, so that without contacts MuJoCo's dynamics are the URDF's: its
-inertias exactly (``inertiafromgeom`` off, no ``balanceinertia``, no ``boundmass``,
-``boundinertia`` :data:`~feltool.robot.mujoco.MIN_INERTIA`), fixed links kept as bodies, joint
-limits, armature and the URDF's meshes off (its ``<visual>`` and ``<collision>`` elements are
-dropped before MuJoCo reads it: only the inertias and joints matter). What the URDF lacks is
-added programmatically:
+MuJoCo's model is built from the known model's own numbers (``mujoco.MjSpec``), as the CasADi
+expressions are (:mod:`feltool.dynamics.spatial`): one body per Pinocchio joint, placed by its
+``jointPlacements`` in its parent's body, with the joint's inertia (``model.inertias``: mass,
+centre of mass, rotational inertia, ``explicitinertial``) and the joint itself -- MuJoCo's free
+joint for the free flyer, a hinge for a revolute joint (about x, y, z or its own axis), a slide
+for a prismatic one, with the model's ``armature`` (the motors' reflected inertia, which
+Pinocchio's algorithms add to the mass matrix: example-robot-data's Talos has 0.1 kg m^2). So it
+is exactly the robot the controller knows, whatever it was loaded from: a URDF file,
+example-robot-data's robot (Talos' legs are its URDF's legs and torso, the rest removed: compiling that
+URDF would add 42 kg of arms and head), a reduced model. Other joint types are refused, naming
+the joint. With the settings of :func:`feltool.robot.mujoco.urdf_settings` MuJoCo's dynamics
+without contacts are Pinocchio's (``tests/test_legged_mujoco.py``, to 1e-9); what differs is
+what a different simulator brings: its soft contacts and its integrator. What is added:
 
-* a **free joint** on the root body (Pinocchio's ``JointModelFreeFlyer``);
 * the **floor**, a plane :data:`~feltool.robot.mujoco.FOOT_RADIUS` below z = 0, and one small
   sphere of that radius per point foot centred on the foot point, so a foot point at z = 0
   touches the floor; only feet and floor collide;
@@ -21,7 +26,7 @@ added programmatically:
   (:class:`~feltool.walking.legged.model.Payload`; :func:`~feltool.walking.legged.model.with_payload`
   puts the same one on a Pinocchio model).
 
-The 12 motor torques enter as ``qfrc_applied`` on the joints matched by name.
+The motor torques enter as ``qfrc_applied`` on the joints matched by name.
 
 **Coordinates.** Pinocchio's free flyer: ``q = (x, y, z, quaternion x, y, z, w, joints)``,
 ``v = (base linear velocity in the base frame, angular velocity in the base frame, joint
@@ -33,9 +38,6 @@ base-frame velocity :math:`R^\top \dot p`).
 """
 
 from __future__ import annotations
-
-import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -54,33 +56,60 @@ SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)  #: contact solimp (d0, dwidth, width [m],
 IMPRATIO = 100.0
 
 
-def solo12_urdf() -> Path:
-    """The path of example-robot-data's ``solo12.urdf`` (what :func:`load_solo12` reads)."""
-    import example_robot_data as erd
+#: Pinocchio's one-degree-of-freedom joints and MuJoCo's joint of each, with its axis (None:
+#: the joint's own ``axis``)
+_JOINTS = {"JointModelRX": ("hinge", (1.0, 0.0, 0.0)), "JointModelRY": ("hinge", (0.0, 1.0, 0.0)),
+           "JointModelRZ": ("hinge", (0.0, 0.0, 1.0)), "JointModelRevoluteUnaligned": ("hinge", None),
+           "JointModelPX": ("slide", (1.0, 0.0, 0.0)), "JointModelPY": ("slide", (0.0, 1.0, 0.0)),
+           "JointModelPZ": ("slide", (0.0, 0.0, 1.0)), "JointModelPrismaticUnaligned": ("slide", None)}
 
-    return Path(erd.load("solo12").urdf)
+
+def _wxyz(R: np.ndarray) -> np.ndarray:
+    """MuJoCo's quaternion ``(w, x, y, z)`` of a rotation matrix."""
+    x, y, z, w = pin.Quaternion(np.asarray(R, float)).coeffs()
+    return np.array([w, x, y, z])
 
 
-def _urdf_without_geometry(path: Path) -> str:
-    """The URDF's text without its ``<visual>`` and ``<collision>`` elements (MuJoCo would load
-    their meshes; the plant's only collision geometry is the feet's spheres)."""
-    try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as exc:
-        raise RobotError(f"MuJoCo's plant cannot read the URDF '{path}': {exc}") from None
-    for link in root.iter("link"):
-        for tag in ("visual", "collision"):
-            for el in link.findall(tag):
-                link.remove(el)
-    return ET.tostring(root, encoding="unicode")
+def model_spec(mujoco, legged: LeggedModel):
+    """``(spec, bodies)``: MuJoCo's spec of the legged robot's Pinocchio model (module doc)
+    and its body per Pinocchio joint index (1: the root, on MuJoCo's free joint
+    ``feltool_root``). Raises :class:`RobotError` naming a joint MuJoCo's spec cannot have."""
+    m = legged.model
+    if m.njoints < 2 or m.joints[1].shortname() != "JointModelFreeFlyer" or \
+            not m.jointPlacements[1].isIdentity():
+        raise RobotError(f"{legged.name}: MuJoCo's plant needs a free flyer as the first joint, "
+                         "placed at the world's origin")
+    spec = mujoco.MjSpec()
+    bodies = {0: spec.worldbody}
+    kinds = {"hinge": mujoco.mjtJoint.mjJNT_HINGE, "slide": mujoco.mjtJoint.mjJNT_SLIDE}
+    for j in range(1, m.njoints):
+        M, inertia, joint = m.jointPlacements[j], m.inertias[j], m.joints[j]
+        body = bodies[m.parents[j]].add_body(name=f"feltool_body_{j}", pos=M.translation,
+                                             quat=_wxyz(M.rotation))
+        body.explicitinertial = True
+        body.mass, body.ipos = float(inertia.mass), np.array(inertia.lever)
+        I = np.array(inertia.inertia)
+        body.fullinertia = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+        if j == 1:
+            body.add_freejoint(name="feltool_root")
+        elif joint.shortname() in _JOINTS:
+            kind, axis = _JOINTS[joint.shortname()]
+            body.add_joint(name=m.names[j], type=kinds[kind],
+                           axis=np.array(joint.axis if axis is None else axis, float),
+                           armature=float(m.armature[joint.idx_v]))
+        else:
+            raise RobotError(f"{legged.name}: joint '{m.names[j]}' ({joint.shortname()}) has "
+                             "no MuJoCo counterpart in feltool's plant (revolute and prismatic "
+                             "joints only)")
+        bodies[j] = body
+    return spec, bodies
 
 
 class LeggedMujoco:
     """A :class:`LeggedModel` compiled by MuJoCo (module doc).
 
     Args:
-        legged: The robot (its joints and foot frames; the known model).
-        urdf: Its URDF file (default: Solo-12's, :func:`solo12_urdf`).
+        legged: The robot (its joints, inertias and foot frames; the known model).
         timestep: MuJoCo's step [s].
         friction: The feet's friction coefficient :math:`\\mu` against the floor [-].
         integrator: ``euler`` (semi-implicit, ``eulerdamp`` off) or ``rk4``.
@@ -101,8 +130,8 @@ class LeggedMujoco:
         base: the base body's id.
     """
 
-    def __init__(self, legged: LeggedModel, urdf: str | Path | None = None,
-                 timestep: float = 5e-4, friction: float = 0.7, integrator: str = "euler",
+    def __init__(self, legged: LeggedModel, timestep: float = 5e-4, friction: float = 0.7,
+                 integrator: str = "euler",
                  timeconst: float | None = None, dampratio: float = DAMPRATIO,
                  solimp: tuple = SOLIMP, impratio: float = IMPRATIO,
                  noslip_iterations: int = 0, payload: Payload | None = None,
@@ -110,28 +139,19 @@ class LeggedMujoco:
                  floor: bool = True):
         mujoco = self._mj = import_mujoco()
         self.legged = legged
-        path = solo12_urdf() if urdf is None else Path(urdf)
         if integrator not in ("euler", "rk4"):
             raise ConfigError([("integrator", f"'euler' or 'rk4', not {integrator!r}")])
-        try:
-            spec = mujoco.MjSpec.from_string(_urdf_without_geometry(path))
-        except Exception as exc:
-            raise RobotError(f"MuJoCo cannot read '{path}': {exc}") from None
+        spec, bodies = model_spec(mujoco, legged)
         self.gravity = None if gravity is None else np.array(gravity, float)
         urdf_settings(mujoco, spec, timestep, integrator, legged.model.gravity.linear
                       if gravity is None else self.gravity, discard_visual=False)
         spec.option.impratio, spec.option.noslip_iterations = impratio, noslip_iterations
-        for j in spec.joints:
-            j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
-            j.armature, j.frictionloss, j.damping = 0.0, 0.0, np.zeros(3)
-        root = spec.worldbody.first_body()
-        root.add_freejoint(name="feltool_root")
+        root = bodies[1]
         if payload is not None:
             root.add_body(name="feltool_payload", pos=np.asarray(payload.offset, float),
                           ipos=[0.0, 0.0, 0.0], mass=float(payload.mass),
                           inertia=[MIN_INERTIA] * 3,
                           explicitinertial=True)
-        bodies = {j.name: j.parent for j in spec.joints}
         self.timeconst = max(TIMECONST, 2.0 * timestep) if timeconst is None else timeconst
         common = dict(friction=[friction, 0.005, 0.0001], solref=[self.timeconst, dampratio],
                       solimp=list(solimp), condim=3)
@@ -141,18 +161,14 @@ class LeggedMujoco:
                                     conaffinity=0, **common)
         pm = legged.model
         for foot, fid in legged.feet.items():
-            frame = pm.frames[fid]
-            jname = pm.names[frame.parentJoint]
-            body = root if frame.parentJoint <= 1 else bodies[jname]
-            # the foot point in its joint's frame, which is its MuJoCo body's frame (fixed
-            # links are separate MuJoCo bodies, but a joint's body is the joint's child link)
-            body.add_geom(name=f"feltool_foot_{foot}", type=mujoco.mjtGeom.mjGEOM_SPHERE,
+            frame = pm.frames[fid]  # the foot point in its joint's frame: its body's frame
+            bodies[frame.parentJoint].add_geom(name=f"feltool_foot_{foot}", type=mujoco.mjtGeom.mjGEOM_SPHERE,
                           size=[FOOT_RADIUS, 0, 0], pos=np.array(frame.placement.translation),
                           contype=0, conaffinity=1 if floor else 0, **common)
         try:
             self.model = spec.compile()
         except Exception as exc:
-            raise RobotError(f"MuJoCo cannot compile '{path}': {exc}") from None
+            raise RobotError(f"{legged.name}: MuJoCo cannot compile its model: {exc}") from None
         self.data = mujoco.MjData(self.model)
         self._map(legged)
         self.feet = {f: self.model.geom(f"feltool_foot_{f}").id for f in legged.feet}
@@ -208,13 +224,10 @@ class LeggedMujoco:
             if i is None or pm.joints[j].nq != 1 or \
                     int(m.jnt_type[i]) not in (int(mj.mjtJoint.mjJNT_HINGE),
                                                int(mj.mjtJoint.mjJNT_SLIDE)):
-                raise RobotError(f"{legged.name}: MuJoCo's model of the URDF has no "
-                                 f"one-degree-of-freedom joint '{name}'")
+                raise RobotError(f"{legged.name}: MuJoCo's model has no one-degree-of-freedom "
+                                 f"joint '{name}'")
             q_mj.append(int(m.jnt_qposadr[i]))
             v_mj.append(int(m.jnt_dofadr[i]))
-        if names:
-            raise RobotError(f"{legged.name}: the URDF's joints {sorted(names)} are not in the "
-                             "legged model (locked joints are not supported)")
         self.q_mj, self.v_mj = np.array(q_mj, int), np.array(v_mj, int)
 
     # -- coordinates --------------------------------------------------------------------------
