@@ -21,7 +21,7 @@ import yaml
 
 from feltool.cli.main import main
 
-from .conftest import CONFIGS, feltool
+from .conftest import CONFIGS, edited_solo_urdf, feltool
 
 SHIPPED = CONFIGS / "legged" / "solo12_trot.yaml"
 
@@ -192,6 +192,41 @@ def test_a_missed_success_bound_exits_1_and_keeps_the_results(tmp_path, capsys):
     assert json.loads((out / "summary.json").read_text())["verdict"] == "failed"
 
 
+def test_a_quadruped_urdf_of_ones_own_runs_on_mujoco_as_itself(tmp_path, capsys):
+    """Solo-12's URDF with every joint renamed, as a config's robot on MuJoCo's plant, its
+    reference posture (example-robot-data's, knees bent) from ``walking.posture``: the run trots
+    this robot (MuJoCo's model built from it, not example-robot-data's Solo-12, whose joints it
+    would not find)."""
+    feet = {f: {"frame": f"{f}_FOOT"} for f in ("FL", "FR", "HL", "HR")}
+    posture = {f"my_{leg}_{j}": a for leg, side, end in (("FL", 1, 1), ("FR", -1, 1),
+                                                        ("HL", 1, -1), ("HR", -1, -1))
+               for j, a in (("HAA", 0.1 * side), ("HFE", 0.8 * end), ("KFE", -1.6 * end))}
+    path = _config(tmp_path, shipped=CONFIGS / "legged" / "solo12_trot_mujoco.yaml",
+                   robot=str(edited_solo_urdf(tmp_path)), walking__feet=feet, effort=2.7,
+                   walking__acquire=0, walking__posture=posture)
+    out = tmp_path / "run"
+    code = main(["run", str(path), "--seeds", "0", "--cycles", "3", "--out", str(out),
+                 "--no-progress"])
+    summary = json.loads((out / "summary.json").read_text())
+    assert code in (0, 1), capsys.readouterr()  # 3 cycles: the success bound may be missed
+    assert summary["plant"] == "mujoco" and summary["motors"][0] == "my_FL_HAA"
+    assert summary["seeds"][0]["walked"] and summary["seeds"][0]["cycles"] == 3
+
+
+def test_a_seed_that_stops_before_its_first_cycle_exits_1_with_its_figure(tmp_path, capsys):
+    """Motors too weak to stand (0.5 N m): a foot slips before the first cycle; the run says
+    why, exits 1, and draws its (empty) figure without a traceback."""
+    out = tmp_path / "run"
+    path = _config(tmp_path, effort=0.5, walking__acquire=0)
+    assert main(["run", str(path), "--seeds", "0", "--cycles", "3", "--out", str(out),
+                 "--no-progress"]) == 1
+    printed = capsys.readouterr()
+    assert "Traceback" not in printed.err and "NOT WALKING" in printed.out.upper()
+    entry = json.loads((out / "summary.json").read_text())["seeds"][0]
+    assert entry["cycles"] == 0 and entry["kind"] == "friction"
+    assert (out / "figures" / "legged_feedback.png").stat().st_size > 5_000
+
+
 def _solo_urdf() -> str:
     import example_robot_data as erd
 
@@ -210,6 +245,10 @@ BAD = [
     ({"robot": "anymal"}, "robot: 'anymal' is neither solo12, talos_legs nor a URDF"),
     ({"robot": "{urdf}", "walking__feet": None}, "walking.feet: required for a URDF robot"),
     ({"effort": -1}, "effort:"),
+    ({"walking__posture": {"FL_KNEE": -1.6}}, "walking.posture.FL_KNEE: no motor joint 'FL_KNEE'"),
+    ({"walking__posture": {"root_joint": 0.0}}, "walking.posture.root_joint: no motor joint"),
+    ({"walking__posture": {"FL_KFE": float("nan")}}, "walking.posture.FL_KFE:"),
+    ({"walking__posture": {"FL_KFE": "bent"}}, "walking.posture.FL_KFE:"),
     ({"payload__fraction": 0}, "payload.fraction:"),
     ({"payload__cycle": 0}, "payload.cycle:"),
     ({"payload": None}, "success.ratio_from: change needs a change of the world"),

@@ -17,7 +17,7 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, ValidationError, field_validator
 
 from feltool.bounds import MAX_CYCLES, MAX_RATE_HZ, MAX_SEED, MAX_SEEDS
-from feltool.config.base import NonNegFloat, PositiveFloat, Strict, once_each
+from feltool.config.base import FiniteFloat, NonNegFloat, PositiveFloat, Strict, once_each
 from feltool.config.experiment import SuccessConfig
 from feltool.config.files import _pydantic_problems
 from feltool.config.walking import FootConfig
@@ -93,6 +93,12 @@ class LeggedWalkingConfig(Strict):
         "HR (all four, no others), each a URDF frame ({frame: NAME}) or a link and an offset "
         "in its frame ({link: NAME, offset: [x, y, z]} in [m]); required for a URDF robot, "
         "default for solo12 its FL_FOOT, FR_FOOT, HL_FOOT, HR_FOOT frames.")
+    posture: dict[str, Annotated[FiniteFloat, Field(ge=-100.0, le=100.0)]] | None = Field(
+        None, description="The robot's reference posture: motor joint name -> its angle in "
+        "[rad] (a prismatic joint's position in [m]); the joints not named keep the model's "
+        "(solo12, talos_legs: example-robot-data's reference posture; a URDF: 0, which for "
+        "most legs is straight and singular). The robot stands in it, the feet put on the "
+        "ground, and the gait's poses start from it.")
     gait: TrotGaitConfig = Field(default_factory=TrotGaitConfig, description="The trot.")
     walk: WalkGaitConfig | None = Field(None, description="A biped's walk instead of the trot "
         "(the feet are then the soles' corners, left and right; default for talos_legs: each "
@@ -132,9 +138,9 @@ class LeggedPlantConfig(Strict):
     """What simulates the robot; the controller's model is always the known rigid one."""
 
     simulator: Literal["pinocchio", "mujoco"] = Field("pinocchio", description="pinocchio: the "
-        "rigid contact loop (unilateral impacts, every contact check); mujoco: the same URDF "
-        "compiled by MuJoCo with its soft contacts (docs/legged_mujoco.md; pip install "
-        "'feltool[mujoco]').")
+        "rigid contact loop (unilateral impacts, every contact check); mujoco: the known model "
+        "(its joints and inertias) built in MuJoCo, with MuJoCo's soft contacts "
+        "(docs/legged_mujoco.md; pip install 'feltool[mujoco]').")
 
 
 class LeggedPayloadConfig(Strict):

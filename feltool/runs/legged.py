@@ -74,6 +74,7 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
         TALOS_FEET,
         legged_model,
         load_legged_urdf,
+        with_posture,
     )
 
     feet = {name: foot.model_dump(exclude_none=True) for name, foot in
@@ -91,11 +92,13 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
             name = cfg.robot.split(":")[-1]
             robot = erd.load(name)
             default = SOLO12_FEET if name == "solo12" else TALOS_FEET
-            return legged_model(robot.model, feet or default, q0=np.array(robot.q0),
-                                effort=cfg.effort, name=name)
-        if not path.is_file():
+            legged = legged_model(robot.model, feet or default, q0=np.array(robot.q0),
+                                  effort=cfg.effort, name=name)
+        elif not path.is_file():
             raise ConfigError([("robot", f"{path}: no such URDF file")])
-        return load_legged_urdf(path, feet, effort=cfg.effort)
+        else:
+            legged = load_legged_urdf(path, feet, effort=cfg.effort)
+        return with_posture(legged, cfg.walking.posture or {})
     except RobotError as exc:
         raise ConfigError([("robot", str(exc))], source) from None
     except ConfigError as exc:
@@ -462,7 +465,10 @@ def draw_feedback(out_dir: Path, results: list[dict], change: int | None) -> Pat
         ax.plot(np.arange(len(fb)), fb, lw=1.2, label=f"seed {r['entry']['seed']}")
     if change is not None:
         ax.axvline(change, color="k", ls=":", lw=1, label=f"world changes (cycle {change})")
-    ax.set_yscale("log")
+    if any(np.any(np.asarray(r["params"]["feedback"]) > 0) for r in results):
+        ax.set_yscale("log")
+    else:  # a log axis of nothing positive is an error in matplotlib
+        ax.text(0.5, 0.5, "no seed completed a cycle", transform=ax.transAxes, ha="center")
     ax.set_xlabel("cycle")
     ax.set_ylabel("summed feedback per cycle [N m]")
     ax.set_title("Legged trot: feedback over the cycles")

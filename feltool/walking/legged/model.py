@@ -193,6 +193,25 @@ def legged_model(model: pin.Model, feet: dict[str, dict], q0: np.ndarray | None 
                        name=name)
 
 
+def with_posture(legged: LeggedModel, posture: dict[str, float]) -> LeggedModel:
+    """``legged`` with its reference configuration :attr:`LeggedModel.q0`'s motor joints set
+    from ``posture`` (joint name -> angle [rad] or position [m]). Raises
+    :class:`ConfigError` naming ``walking.posture.<name>`` for a name that is no motor joint
+    of one coordinate."""
+    m, q0, problems = legged.model, legged.q0.copy(), []
+    for name, value in posture.items():
+        j = m.getJointId(name) if m.existJointName(name) else m.njoints
+        if j < 2 or j >= m.njoints or m.joints[j].nq != 1:
+            problems.append((f"walking.posture.{name}", f"no motor joint '{name}' in "
+                             f"{legged.name} (its motors: {', '.join(legged.motors)})"))
+            continue
+        q0[m.joints[j].idx_q] = float(value)
+    if problems:
+        raise ConfigError(problems)
+    return LeggedModel(model=legged.model, feet=dict(legged.feet), effort=legged.effort.copy(),
+                       q0=q0, name=legged.name)
+
+
 def load_legged_urdf(path: str | Path, feet: dict[str, dict], effort=None) -> LeggedModel:
     """A legged robot from a URDF file, put on a free flyer (``JointModelFreeFlyer`` above its
     root link). Raises :class:`RobotError` naming the file when it cannot be read."""
