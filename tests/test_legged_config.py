@@ -399,7 +399,7 @@ WALK_BAD = [
     ({"walking__walk": None}, "walking.walk: a biped (talos_legs) walks"),
     ({"walking__walk__right": ["L_toe_out"]}, "walking.walk: a foot in both soles or twice"),
     ({"walking__gait": {"speed": 0.3}}, "walking.gait: the trot's"),
-    ({"plant__simulator": "mujoco"}, "plant.simulator: a biped's walk runs on the pinocchio"),
+    ({"plant__simulator": "mujoco"}, "sim.impact_window_s: the rigid plant's impact window"),
     ({"walking__walk__sway": 3}, "walking.walk.sway:"),
     ({"walking__feet": {"L_toe_out": {"link": "leg_left_6_link", "offset": [0.1, 0.065, -0.107]}}},
      "walking.walk: not among walking.feet: L_toe_in, L_heel_out"),
@@ -421,6 +421,21 @@ def test_a_bad_walk_field_exits_2_naming_it(tmp_path, capsys, changes, message):
     err = capsys.readouterr().err
     assert message in err, err
     assert "Traceback" not in err and err.count("\n") == 1, err
+
+
+def test_the_biped_walks_on_mujoco_from_its_config(tmp_path):
+    """Talos' walk with MuJoCo as the plant (its eight sole corners MuJoCo's contacts, each
+    sole's load checked as a whole: checked corner by corner, the walk stopped at its first
+    control step), 1 seed x 2 cycles, no payload: every cycle walked physically."""
+    out = tmp_path / "run"
+    path = _walk(tmp_path, plant__simulator="mujoco", sim__impact_window_s=None, payload=None,
+                 success={"ratio_from": "first"})
+    assert main(["run", str(path), "--seeds", "0", "--cycles", "2", "--out", str(out),
+                 "--no-progress"]) in (0, 1)
+    seed = json.loads((out / "summary.json").read_text())["seeds"][0]
+    assert seed["walked"] and seed["cycles"] == 2, seed["not_walking"]
+    assert seed["stats"]["min_normal_force"] >= 0.0
+    assert seed["stats"]["max_friction_ratio"] < 0.7
 
 
 def test_a_short_biped_run_walks_and_writes_its_directory(tmp_path):

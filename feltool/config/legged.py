@@ -251,6 +251,9 @@ class LeggedExperimentConfig(Strict):
     def problems(self) -> list[tuple[str, str]]:
         """Checks across fields, as ``(yaml_path, message)`` pairs."""
         out = []
+        if self.plant.simulator == "mujoco" and "impact_window_s" in self.sim.model_fields_set:
+            out.append(("sim.impact_window_s", "the rigid plant's impact window; MuJoCo's soft "
+                                               "contacts have none (plant.simulator: mujoco)"))
         feet, walk = self.walking.feet, self.walking.walk
         talos = self.robot in NAMED_ROBOTS[2:]
         if walk is not None or talos:
@@ -267,9 +270,6 @@ class LeggedExperimentConfig(Strict):
             out.append(("walking.feet", "required for a URDF robot: FL, FR, HL, HR, each "
                                         "{frame: NAME} or {link: NAME, offset: [x, y, z]}"))
         out += self._world_problems()
-        if self.plant.simulator == "mujoco" and "impact_window_s" in self.sim.model_fields_set:
-            out.append(("sim.impact_window_s", "the rigid plant's impact window; MuJoCo's soft "
-                                               "contacts have none (plant.simulator: mujoco)"))
         return out
 
     def _walk_problems(self) -> list[tuple[str, str]]:
@@ -298,9 +298,6 @@ class LeggedExperimentConfig(Strict):
             out.append(("walking.feet", "required for a URDF robot: each sole's corners, "
                                         "{link: NAME, offset: [x, y, z]}"))
         out += self._world_problems()
-        if self.plant.simulator == "mujoco":
-            out.append(("plant.simulator", "a biped's walk runs on the pinocchio plant (its "
-                                           "soles' corners are not MuJoCo's contacts yet)"))
         return out
 
     def _world_problems(self) -> list[tuple[str, str]]:

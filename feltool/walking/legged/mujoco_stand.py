@@ -22,7 +22,10 @@ what the rigid loop computes from its constraints is read from MuJoCo's contacts
 * **normal force**: each stance foot's normal force, its mean over the last
   :data:`NORMAL_FORCE_WINDOW` (once it has stood that long: a landing foot's force builds up
   from zero), must stay above ``max(0, normal_force_min)`` (kind ``normal_force``); the
-  friction ratio :math:`\|f_t\|/f_n` of that mean is recorded;
+  friction ratio :math:`\|f_t\|/f_n` of that mean is recorded. Points of one link (a sole's
+  corners) are checked as the rigid loop checks them (:func:`~feltool.walking.legged.sole
+  .distribute`): their means replaced, when one of them pulls or leaves its cone, by any
+  distribution of the link's wrench that pushes inside the cones, when there is one;
 * **slip**: a stance foot's horizontal travel since it joined the stance stays below
   :data:`SLIP_TOL` (MuJoCo's cone lets a foot slide where the rigid loop would report the
   friction ratio; kind ``friction``);
@@ -53,6 +56,7 @@ from feltool.walking.legged.control import StandingController
 from feltool.walking.legged.events import LIFT_OFF_WINDOW
 from feltool.walking.legged.model import LeggedModel, Payload
 from feltool.walking.legged.mujoco_plant import LeggedMujoco
+from feltool.walking.legged.sole import distribute
 from feltool.walking.legged.stand import Push, StandLog
 
 LIFT_OFF_HYSTERESIS = 0.0002  #: a foot point this high [m] has left the floor
@@ -65,8 +69,9 @@ NORMAL_FORCE_WINDOW = 0.005   #: a stance foot's normal force checked is its mea
 class _Feet:
     """The feet's contact bookkeeping across MuJoCo steps (module doc)."""
 
-    def __init__(self, names: list[str], h: float, stance: tuple[str, ...], points: np.ndarray):
-        self.names, self.h = names, h
+    def __init__(self, names: list[str], h: float, stance: tuple[str, ...], points: np.ndarray,
+                 links: list[int]):
+        self.names, self.h, self.links = names, h, links
         self.n_window = max(1, int(round(NORMAL_FORCE_WINDOW / h)))
         self.stance = tuple(stance)
         self.anchor = {f: points[i, :2].copy() for i, f in enumerate(names)}
@@ -140,7 +145,7 @@ def stand_mujoco(legged: LeggedModel, controller: StandingController, q0: np.nda
     q, v = contact.hold(np.array(q0, float), np.zeros(legged.nv) if v0 is None
                         else np.array(v0, float), stance, contact.positions(q0))
     plant.set_state(q, v)
-    feet = _Feet(names, h, stance, plant.foot_points())
+    feet = _Feet(names, h, stance, plant.foot_points(), [contact.link(f) for f in names])
     n = int(round(duration * rate_hz))
     st = LeggedStats()
     rec = {key: [] for key in ("t", "q", "v", "u", "forces")}
@@ -254,14 +259,18 @@ def _check(chk: ContactChecks, st: LeggedStats, feet: _Feet, points: np.ndarray,
         win.append(forces[k])
         if len(win) > feet.n_window:
             win.pop(0)
-        if len(win) < feet.n_window:
-            continue
-        fx, fy, fz = np.mean(win, axis=0)
+    held = [k for k, f in enumerate(names) if f in feet.stance
+            and len(feet.window[f]) == feet.n_window]
+    # points of one link (a sole's corners): any distribution of their wrench will do
+    means = distribute([feet.links[k] for k in held], points[held],
+                       np.array([np.mean(feet.window[names[k]], axis=0) for k in held]
+                                ).reshape(-1, 3), chk.friction, floor)
+    for k, (fx, fy, fz) in zip(held, means, strict=True):
         st.min_normal_force = min(st.min_normal_force, float(fz))
         if not fz > floor:
-            raise NotWalking(f"the stance foot {f} would pull on the ground: MuJoCo's normal "
-                             f"force {fz:.4g} N (mean over {NORMAL_FORCE_WINDOW * 1e3:g} ms) at "
-                             f"t = {t:.4f} s (walking.normal_force_min = "
+            raise NotWalking(f"the stance foot {names[k]} would pull on the ground: MuJoCo's "
+                             f"normal force {fz:.4g} N (mean over {NORMAL_FORCE_WINDOW * 1e3:g} "
+                             f"ms) at t = {t:.4f} s (walking.normal_force_min = "
                              f"{chk.normal_force_min} N)", "normal_force")
         st.max_friction_ratio = max(st.max_friction_ratio, float(np.hypot(fx, fy) / fz))
     for f, since in list(feet.released.items()):
