@@ -149,11 +149,11 @@ class LeggedStream:
 
 
 def replay_legged(viewer, run_dir: Path, seed: int | None = None, loops: int = 0,
-                  out=sys.stdout, timeout_s: float | None = None) -> int:
+                  timeout_s: float | None = None) -> int:
     """Play :func:`legged_clips` in the live viewer at wall-clock speed, each in place,
-    ``loops`` times (0: until interrupted, or until ``timeout_s`` [s] has passed). Returns the
-    seed played."""
+    ``loops`` times (0: until interrupted, or until ``timeout_s`` [s] has passed), each clip
+    announced on stdout. Returns the seed played."""
     seed, dt, clips, _ = legged_clips(run_dir, seed)
     play_clips(viewer, {name: (in_place(q)[0], None) for name, q in clips.items()}, dt,
-               f"seed {seed}", loops, out, timeout_s)
+               f"seed {seed}", loops, sys.stdout, timeout_s)
     return seed
