@@ -78,6 +78,10 @@ EXEMPT = {
     "feltool run configs/legged/talos_walk.yaml": "10 seeds x 24 cycles of Talos walking, ~45 "
                                                   "min (tests/test_legged_config.py runs it "
                                                   "short through the command)",
+    "feltool run configs/legged/talos_walk_mujoco.yaml": "10 seeds x 24 cycles of Talos "
+                                                         "walking on MuJoCo, ~1 h "
+                                                         "(tests/test_legged_config.py walks it "
+                                                         "2 cycles through the command)",
 }
 #: A command with one of these needs a service that is not here.
 NEEDS_SERVICE = ("--zmq-url", "--scheduler")
