@@ -48,13 +48,18 @@ def test_coordinates_both_ways_and_the_accelerations_are_pinocchios(solo, seed):
     q2, v2 = p.to_pinocchio(qpos, qvel)
     np.testing.assert_allclose(q2, q, atol=1e-14)
     np.testing.assert_allclose(v2, v, atol=1e-14)
-    u = rng.uniform(-2.7, 2.7, 12)
+    _check_accelerations(p, solo, q, v, rng.uniform(-2.7, 2.7, 12))
+
+
+def _check_accelerations(p, legged, q, v, u) -> None:
+    """``mj_forward``'s accelerations under motor torques ``u`` are ``pin.aba``'s (1e-8), its
+    foot points Pinocchio's (1e-14)."""
     p.set_state(q, v)
     p.data.qfrc_applied[:] = p.generalized(u)
     mujoco.mj_forward(p.model, p.data)
-    a = pin.aba(solo.model, solo.data, q, v, np.r_[np.zeros(6), u])
+    a = pin.aba(legged.model, legged.data, q, v, np.r_[np.zeros(6), u])
     np.testing.assert_allclose(p.acceleration(), a, atol=1e-8 * max(1.0, np.abs(a).max()))
-    np.testing.assert_allclose(p.foot_points(), solo.foot_positions(q), atol=1e-14)
+    np.testing.assert_allclose(p.foot_points(), legged.foot_positions(q), atol=1e-14)
 
 
 def _pinocchio_flight(model, q, v, tau, duration):
@@ -179,7 +184,7 @@ def test_bad_plant_inputs_are_named(solo):
 @pytest.mark.parametrize("robot", ["urdf", "talos_legs"])
 def test_mujoco_compiles_the_known_models_robot_whatever_it_was_loaded_from(robot, tmp_path):
     """Any legged model, not Solo-12's file: a URDF of one's own (renamed joints, a heavier
-    base) and example-robot-data's Talos legs (its URDF is the whole robot, 44 kg more). MuJoCo's
+    base) and example-robot-data's Talos legs (its URDF is the whole robot, 42 kg more). MuJoCo's
     mass is the model's and its accelerations are ``pin.aba``'s at a random state (1e-8)."""
     from feltool.walking.legged.model import load_legged_urdf, load_talos_legs
 
@@ -193,13 +198,7 @@ def test_mujoco_compiles_the_known_models_robot_whatever_it_was_loaded_from(robo
     p = LeggedMujoco(legged, floor=False)
     assert p.model.body_mass.sum() == pytest.approx(legged.mass, rel=1e-12)
     q, v, rng = _random_state(legged, 3)
-    u = rng.uniform(-1.0, 1.0, legged.nv - 6)
-    p.set_state(q, v)
-    p.data.qfrc_applied[:] = p.generalized(u)
-    mujoco.mj_forward(p.model, p.data)
-    a = pin.aba(legged.model, legged.data, q, v, np.r_[np.zeros(6), u])
-    np.testing.assert_allclose(p.acceleration(), a, atol=1e-8 * max(1.0, np.abs(a).max()))
-    np.testing.assert_allclose(p.foot_points(), legged.foot_positions(q), atol=1e-14)
+    _check_accelerations(p, legged, q, v, rng.uniform(-1.0, 1.0, legged.nv - 6))
 
 
 def test_a_joint_mujoco_cannot_have_is_refused_naming_it():

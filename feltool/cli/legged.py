@@ -56,16 +56,11 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     out_dir = out_dir or default_out_dir(cfg.name)
     gait = "walk" if cfg.walking.walk else "trot"
     print(f"feltool: legged {gait}, {cfg.plant.simulator} plant (one seed at a time)", flush=True)
-    viewer = stream = None
-    if args.view or args.zmq_url or args.realtime:
-        from feltool.cli.view import exit_on_sigterm
-        from feltool.viewer.legged import visual_robot
-        from feltool.viewer.live import LiveViewer
+    from feltool.cli.view import keep_viewing, watching
+    from feltool.viewer.legged import visual_robot
 
-        exit_on_sigterm()  # after the run too: the viewer's server is stopped on SIGTERM
-        viewer = LiveViewer(visual_robot(cfg.robot, cfg.urdf_path(path.parent)),
-                            zmq_url=args.zmq_url)
-    try:
+    stream = None
+    with watching(args, lambda: visual_robot(cfg.robot, cfg.urdf_path(path.parent))) as viewer:
         if viewer is not None:
             from feltool.runs.legged import finished_seeds
             from feltool.viewer.legged import LeggedStream
@@ -84,19 +79,15 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
                     stream.close()
         print_summary(summary, out_dir)
         if args.html:
-            from feltool.viewer.legged import visual_robot, write_legged_html
+            from feltool.viewer.legged import write_legged_html
 
             robot = visual_robot(cfg.robot, cfg.urdf_path(path.parent))
             print(f"  rollout: {write_legged_html(out_dir, robot)}")
         if viewer is not None:  # the page stays up after the run: replay what it learned
-            from feltool.cli.view import keep_viewing
             from feltool.viewer.legged import replay_legged
 
             keep_viewing(viewer, lambda left: replay_legged(viewer, out_dir, timeout_s=left),
                          args.view_timeout)
-    finally:
-        if viewer is not None:
-            viewer.close()
     return exit_code(summary)
 
 

@@ -16,7 +16,7 @@ from feltool.cli.common import (
     progress_mode,
     subcommand,
 )
-from feltool.cli.view import exit_on_sigterm, keep_viewing
+from feltool.cli.view import keep_viewing, watching
 from feltool.errors import InputError
 from feltool.runs.checkpoint import Interrupted
 
@@ -64,15 +64,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         seeds, cycles = None, None
         out_dir = out_dir or default_out_dir(exp.config.name)
     print(f"feltool: {exp.engine} engine ({exp.engine_reason})", flush=True)
-    viewer = stream = None
-    if args.view or args.zmq_url or args.realtime:
-        from feltool.viewer.live import LiveViewer
-        from feltool.viewer.rollout import LiveStream
-
-        exit_on_sigterm()  # so that the viewer's server is stopped on SIGTERM too
-        viewer = LiveViewer(exp.robot, zmq_url=args.zmq_url)
-    try:
+    stream = None
+    with watching(args, lambda: exp.robot) as viewer:
         if viewer is not None:
+            from feltool.viewer.rollout import LiveStream
+
             stream = LiveStream(viewer, exp.config.dt, cycles or exp.config.sim.cycles,
                                 realtime=args.realtime, label=f"seed {exp.config.seed_list[0]}")
         try:
@@ -94,9 +90,6 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             keep_viewing(viewer, lambda left: replay(viewer, out_dir, timeout_s=left),
                          args.view_timeout)
-    finally:
-        if viewer is not None:
-            viewer.close()
     return run_exit_code(summary)
 
 

@@ -6,6 +6,7 @@ import argparse
 import signal
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 from feltool.cli.common import subcommand
@@ -29,6 +30,24 @@ def keep_viewing(viewer, play: Callable[[float | None], object],
     except KeyboardInterrupt:
         pass
     print("feltool viewer: stopped", flush=True)
+
+
+@contextmanager
+def watching(args: argparse.Namespace, robot: Callable[[], object]):
+    """``feltool run``'s live viewer: with ``--view`` (``--zmq-url``, ``--realtime``) a
+    :class:`~feltool.viewer.live.LiveViewer` of ``robot()`` (SIGTERM then ends the command as
+    Ctrl-C does, so its server is stopped), closed when the block ends; else None."""
+    if not (args.view or args.zmq_url or args.realtime):
+        yield None
+        return
+    from feltool.viewer.live import LiveViewer
+
+    exit_on_sigterm()
+    viewer = LiveViewer(robot(), zmq_url=args.zmq_url)
+    try:
+        yield viewer
+    finally:
+        viewer.close()
 
 
 def exit_on_sigterm() -> None:
