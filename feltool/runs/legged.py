@@ -489,9 +489,11 @@ def print_summary(summary: dict[str, Any], out_dir: Path, out: TextIO | None = N
     fmt = lambda x, f: "-" if x is None else format(x, f)  # noqa: E731
     agg = summary["aggregate"]
     n = agg["n_seeds"]
+    change = summary["change_cycle"]
     print(f"{summary['config']}: {n} seed{'' if n == 1 else 's'} x {summary['cycles']} cycles, "
-          f"{summary['robot']} on {summary['plant']}, {summary['world']} from cycle "
-          f"{fmt(summary['change_cycle'], 'd')}; summed feedback [N m]", file=out)
+          f"{summary['robot']} on {summary['plant']}, {summary['world']}"
+          f"{'' if change is None else f' from cycle {change}'}; summed feedback [N m]",
+          file=out)
     print(f"  {'seed':>4} {'cycles':>6} {'outcome':<12} {'fb_first':>9} {'fb_before':>9} "
           f"{'fb_change':>9} {'fb_last':>9} {'last/chg':>8} {'speed':>6}", file=out)
     for s in summary["seeds"]:
