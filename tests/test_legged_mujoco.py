@@ -1,7 +1,8 @@
-"""Solo-12 with MuJoCo as the plant (issue 32): the compiled URDF's dynamics against Pinocchio's
-(coordinates both ways, ABA, a free flight integrated independently, a payload), standing, and a
-short trot in MuJoCo's soft contacts under the rigid model's controllers (the 20 s runs are
-benchmarks/legged_trot_mujoco.py).
+"""Legged robots with MuJoCo as the plant (issue 32): MuJoCo's model, built from the known
+model, against Pinocchio's dynamics (coordinates both ways, ABA, a free flight integrated
+independently, a payload; a URDF of one's own and Talos' reduced legs; a joint it cannot have
+refused), standing, and a short trot in MuJoCo's soft contacts under the rigid model's
+controllers (the 20 s runs are benchmarks/legged_trot_mujoco.py).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ def _random_state(solo, seed):
 def test_coordinates_both_ways_and_the_accelerations_are_pinocchios(solo, seed):
     """q, v -> qpos, qvel -> q, v is the identity; MuJoCo's world-frame linear velocity is the
     base frame's rotated; ``mj_forward``'s accelerations, under random motor torques, are
-    ``pin.aba``'s (1e-8) -- the URDF's inertias compiled exactly, the joints matched."""
+    ``pin.aba``'s (1e-8) -- the model's inertias built exactly, the joints matched."""
     q, v, rng = _random_state(solo, seed)
     p = LeggedMujoco(solo, floor=False)
     qpos, qvel = p.to_mujoco(q, v)

@@ -5,9 +5,9 @@ The controller is the same (:class:`~feltool.walking.legged.control.StandingCont
 :class:`~feltool.walking.legged.trot.TrotController`), called at the control rate with the
 measured state in Pinocchio's coordinates and the stance feet; only the world differs. Every
 sub-step is one MuJoCo step (:class:`~feltool.walking.legged.mujoco_plant.LeggedMujoco`: the
-same URDF, soft contacts, an elliptic friction cone) under the held torques and the push, and
-what the rigid loop computes from its constraints is read from MuJoCo's contacts
-(``mj_contactForce``):
+known model built in MuJoCo, soft contacts, an elliptic friction cone) under the held torques
+and the push, and what the rigid loop computes from its constraints is read from MuJoCo's
+contacts (``mj_contactForce``):
 
 * **stance**: the feet the schedule wants that are on the floor. A stance foot stays in it
   while its point is below :data:`LIFT_OFF_HYSTERESIS` (a soft contact at nanometre depth
