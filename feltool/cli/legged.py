@@ -7,6 +7,7 @@ import argparse
 import signal
 import sys
 from contextlib import contextmanager
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -59,8 +60,9 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     from feltool.cli.view import keep_viewing, watching
     from feltool.viewer.legged import visual_robot
 
+    robot = cache(lambda: visual_robot(cfg.robot, cfg.urdf_path(path.parent)))  # loaded once
     stream = None
-    with watching(args, lambda: visual_robot(cfg.robot, cfg.urdf_path(path.parent))) as viewer:
+    with watching(args, robot) as viewer:
         if viewer is not None:
             from feltool.runs.legged import finished_seeds
             from feltool.viewer.legged import LeggedStream
@@ -81,8 +83,7 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
         if args.html:
             from feltool.viewer.legged import write_legged_html
 
-            robot = visual_robot(cfg.robot, cfg.urdf_path(path.parent))
-            print(f"  rollout: {write_legged_html(out_dir, robot)}")
+            print(f"  rollout: {write_legged_html(out_dir, robot())}")
         if viewer is not None:  # the page stays up after the run: replay what it learned
             from feltool.viewer.legged import replay_legged
 

@@ -14,7 +14,7 @@ limit the URDF's effort limit unless :class:`LeggedModel` is given another.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -208,8 +208,7 @@ def with_posture(legged: LeggedModel, posture: dict[str, float]) -> LeggedModel:
         q0[m.joints[j].idx_q] = float(value)
     if problems:
         raise ConfigError(problems)
-    return LeggedModel(model=legged.model, feet=dict(legged.feet), effort=legged.effort.copy(),
-                       q0=q0, name=legged.name)
+    return replace(legged, q0=q0)
 
 
 def load_legged_urdf(path: str | Path, feet: dict[str, dict], effort=None) -> LeggedModel:

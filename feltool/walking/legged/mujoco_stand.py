@@ -72,6 +72,7 @@ class _Feet:
     def __init__(self, names: list[str], h: float, stance: tuple[str, ...], points: np.ndarray,
                  links: list[int]):
         self.names, self.h, self.links = names, h, links
+        self.soles = len(set(links)) < len(links)  # several points on one link
         self.n_window = max(1, int(round(NORMAL_FORCE_WINDOW / h)))
         self.stance = tuple(stance)
         self.anchor = {f: points[i, :2].copy() for i, f in enumerate(names)}
@@ -261,10 +262,10 @@ def _check(chk: ContactChecks, st: LeggedStats, feet: _Feet, points: np.ndarray,
             win.pop(0)
     held = [k for k, f in enumerate(names) if f in feet.stance
             and len(feet.window[f]) == feet.n_window]
-    # points of one link (a sole's corners): any distribution of their wrench will do
-    means = distribute([feet.links[k] for k in held], points[held],
-                       np.array([np.mean(feet.window[names[k]], axis=0) for k in held]
-                                ).reshape(-1, 3), chk.friction, floor)
+    means = np.array([np.mean(feet.window[names[k]], axis=0) for k in held]).reshape(-1, 3)
+    if feet.soles:  # points of one link (a sole's corners): any distribution of their wrench
+        means = distribute([feet.links[k] for k in held], points[held], means, chk.friction,
+                           floor)
     for k, (fx, fy, fz) in zip(held, means, strict=True):
         st.min_normal_force = min(st.min_normal_force, float(fz))
         if not fz > floor:
