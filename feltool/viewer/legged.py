@@ -19,7 +19,6 @@ takes in the whole clip instead).
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -128,8 +127,7 @@ class LeggedStream:
     def __init__(self, viewer, dt: float, cycles: int | None = None, *,
                  realtime: bool = False, label: str = ""):
         self.dt = float(dt)
-        self.stream = LiveStream(viewer, dt, cycles, realtime=realtime, label=label,
-                                 out=sys.stdout)  # today's stdout, not the one at import
+        self.stream = LiveStream(viewer, dt, cycles, realtime=realtime, label=label)
 
     def __call__(self, cycle: int, t: np.ndarray, q: np.ndarray, q_d: np.ndarray,
                  fb: float) -> None:
@@ -155,5 +153,5 @@ def replay_legged(viewer, run_dir: Path, seed: int | None = None, loops: int = 0
     announced on stdout. Returns the seed played."""
     seed, dt, clips, _ = legged_clips(run_dir, seed)
     play_clips(viewer, {name: (in_place(q)[0], None) for name, q in clips.items()}, dt,
-               f"seed {seed}", loops, sys.stdout, timeout_s)
+               f"seed {seed}", loops, timeout_s=timeout_s)
     return seed

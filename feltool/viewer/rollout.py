@@ -37,6 +37,9 @@ __all__ = ["CYCLES", "LiveStream", "load_rollouts", "parse_cycles", "play_clips"
 
 CYCLES = ("first", "last")  # the cycles a run directory keeps traces of
 STATUS_EVERY_S = 1.0  # the terminal status line is printed at most this often [s]
+#: ``out=STDOUT``: the standard output at the call (``sys.stdout`` as a default would be the
+#: stream of the moment this module was imported, which a test's capture may have closed since)
+STDOUT = object()
 DRAW_BUDGET = 0.08  # at full speed, drawing (mostly waiting on the server) takes at most this
 # share of wall time: ~30 frames/s on an idle machine, fewer on a loaded one
 
@@ -91,13 +94,13 @@ class LiveStream:
     """
 
     def __init__(self, viewer, dt: float, cycles: int | None = None, *, realtime: bool = False,
-                 label: str = "", out=sys.stdout):
+                 label: str = "", out=STDOUT):
         self.viewer = viewer
         self.dt = float(dt)
         self.cycles = cycles
         self.realtime = bool(realtime)
         self.label = label
-        self.out = out
+        self.out = sys.stdout if out is STDOUT else out
         self.frames_drawn = 0
         self.draw_cpu_s = 0.0  # CPU time the drawing process has used [s] (known after close)
         self._last_status = -np.inf
@@ -272,7 +275,7 @@ def write_rollout_html(robot, run_dir: Path, seed: int | None = None,
 
 
 def replay(viewer, run_dir: Path, seed: int | None = None, cycles: Sequence[str] = CYCLES,
-           loops: int = 0, out=sys.stdout, timeout_s: float | None = None) -> int:
+           loops: int = 0, out=STDOUT, timeout_s: float | None = None) -> int:
     """Play recorded cycles in the live viewer at wall-clock speed, ``loops`` times (0: until
     interrupted, or until ``timeout_s`` in [s] has passed). Returns the seed played."""
     seed, dt, clips = load_rollouts(run_dir, seed, cycles)
@@ -281,11 +284,12 @@ def replay(viewer, run_dir: Path, seed: int | None = None, cycles: Sequence[str]
 
 
 def play_clips(viewer, clips: dict[str, tuple[np.ndarray, np.ndarray | None]], dt: float,
-               label: str, loops: int = 0, out=sys.stdout,
+               label: str, loops: int = 0, out=STDOUT,
                timeout_s: float | None = None) -> None:
     """Play ``clips`` (name -> system and ghost configurations, the ghost None for none) one
     after the other at wall-clock speed, ``dt`` [s] a frame, ``loops`` times (0: until
     interrupted, or until ``timeout_s`` [s] has passed), each announced with ``label``."""
+    out = sys.stdout if out is STDOUT else out
     stream = LiveStream(viewer, dt, realtime=True, out=None)
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     done = 0
