@@ -233,7 +233,17 @@ def _solo_urdf() -> str:
     return str(erd.load("solo12").urdf)
 
 
+SOLO_FEET = {f: {"frame": f"{f}_FOOT"} for f in ("FL", "FR", "HL", "HR")}
 BAD = [
+    ({"robot": "example-robot-data:nonsense", "walking__feet": SOLO_FEET},
+     "robot: example-robot-data has no robot 'nonsense'"),
+    ({"robot": "example-robot-data:ur5", "walking__feet": SOLO_FEET},
+     "robot: ur5: a legged robot's first joint must be a free flyer"),
+    ({"robot": "example-robot-data:go1", "walking__feet": None},
+     "walking.feet: required for a URDF or example-robot-data:NAME robot"),
+    ({"robot": "example-robot-data:go1", "walking__feet": {
+        "FL": {"frame": "FL_FOOT"}, "FR": {"frame": "FR_foot"}, "HL": {"frame": "RL_foot"},
+        "HR": {"frame": "RR_foot"}}}, "walking.feet.FL: no frame 'FL_FOOT' in go1"),
     ({"walking__gait__sped": 0.3}, "walking.gait.sped: unknown field"),
     ({"walking__gait__speed": -0.3}, "walking.gait.speed:"),
     ({"walking__gait__period": 0}, "walking.gait.period:"),
@@ -242,8 +252,10 @@ BAD = [
     ({"walking__feet__FL": {"frame": "NOPE"}}, "walking.feet.FL: no frame 'NOPE'"),
     ({"walking__feet__FL": {"frame": "FL_FOOT", "link": "FL_LOWER_LEG"}}, "walking.feet.FL:"),
     ({"robot": "missing.urdf"}, "robot: "),
-    ({"robot": "anymal"}, "robot: 'anymal' is neither solo12, talos_legs nor a URDF"),
-    ({"robot": "{urdf}", "walking__feet": None}, "walking.feet: required for a URDF robot"),
+    ({"robot": "anymal"}, "robot: 'anymal' is neither solo12, talos_legs, "
+                         "example-robot-data:NAME nor a URDF"),
+    ({"robot": "{urdf}", "walking__feet": None},
+     "walking.feet: required for a URDF or example-robot-data:NAME robot"),
     ({"effort": -1}, "effort:"),
     ({"walking__posture": {"FL_KNEE": -1.6}}, "walking.posture.FL_KNEE: no motor joint 'FL_KNEE'"),
     ({"walking__posture": {"root_joint": 0.0}}, "walking.posture.root_joint: no motor joint"),

@@ -30,10 +30,17 @@ TROT_FEET = ("FL", "FR", "HL", "HR")
 NAMED_ROBOTS = ("solo12", "example-robot-data:solo12", "talos_legs",
                 "example-robot-data:talos_legs")
 
+#: A robot of example-robot-data by its loader's name (e.g. ``example-robot-data:go1``)
+ERD = "example-robot-data:"
+
 
 class TrotGaitConfig(Strict):
     """The trot (:class:`~feltool.walking.legged.trot.TrotGait`): the diagonal pairs (FL, HR)
-    and (FR, HL) alternate, each pair's switch an event (both its feet down)."""
+    and (FR, HL) alternate, each pair's switch an event (both its feet down). The defaults are
+    Solo-12's; for another robot the lengths and times a config leaves out (speed, period,
+    step_height, sink, landing_speed, raibert, approach_height) are Solo-12's scaled to it by
+    dynamic similarity, as are the trot's gains (feltool/walking/legged/similar.py, docs/
+    legged.md): the run directory's config.yaml records the values it trotted with."""
 
     speed: PositiveFloat = Field(0.3, le=5.0, description="Forward speed after the ramp, in "
                                  "[m/s] (at most 5).")
@@ -91,7 +98,8 @@ class LeggedWalkingConfig(Strict):
         "flyer (x, y, z, orientation), a 3D legged experiment (this schema).")
     feet: dict[str, FootConfig] | None = Field(None, description="The point feet FL, FR, HL, "
         "HR (all four, no others), each a URDF frame ({frame: NAME}) or a link and an offset "
-        "in its frame ({link: NAME, offset: [x, y, z]} in [m]); required for a URDF robot, "
+        "in its frame ({link: NAME, offset: [x, y, z]} in [m]); required for a URDF or "
+        "example-robot-data:NAME robot, "
         "default for solo12 its FL_FOOT, FR_FOOT, HL_FOOT, HR_FOOT frames.")
     posture: dict[str, Annotated[FiniteFloat, Field(ge=-100.0, le=100.0)]] | None = Field(
         None, description="The robot's reference posture: motor joint name -> its angle in "
@@ -208,8 +216,10 @@ class LeggedExperimentConfig(Strict):
     description: str = Field("", description="Free text shown in summaries.")
     robot: str = Field(min_length=1, description="solo12 (Solo-12 from example-robot-data; also "
         "example-robot-data:solo12), talos_legs (Talos' legs and torso, a biped on two soles; "
-        "walking.walk) or a URDF file's path (relative to the config file), put on a free "
-        "flyer; a URDF needs walking.feet.")
+        "walking.walk), example-robot-data:NAME (any robot of example-robot-data on its free "
+        "flyer, e.g. go1, a1, anymal; its reference posture example-robot-data's) or a URDF "
+        "file's path (relative to the config file), put on a free flyer; those two need "
+        "walking.feet.")
     effort: PositiveFloat | None = Field(None, le=1.0e4, description="Every motor's torque limit "
         "in [N m], replacing the URDF's (Solo-12's URDF says 1000; its actuator's peak is "
         "2.7); default the URDF's.")
@@ -238,9 +248,10 @@ class LeggedExperimentConfig(Strict):
     @field_validator("robot")
     @classmethod
     def _robot(cls, robot: str) -> str:
-        if robot not in NAMED_ROBOTS and not robot.endswith(".urdf"):
-            raise ValueError(f"'{robot}' is neither {NAMED_ROBOTS[0]}, {NAMED_ROBOTS[2]} nor "
-                             "a URDF file's path (ending in .urdf)")
+        if robot not in NAMED_ROBOTS and not robot.endswith(".urdf") and not (
+                robot.startswith(ERD) and len(robot) > len(ERD)):
+            raise ValueError(f"'{robot}' is neither {NAMED_ROBOTS[0]}, {NAMED_ROBOTS[2]}, "
+                             f"{ERD}NAME nor a URDF file's path (ending in .urdf)")
         return robot
 
     @field_validator("seeds")
@@ -267,7 +278,8 @@ class LeggedExperimentConfig(Strict):
                 out.append(("walking.feet", f"the trot needs all four feet "
                                             f"{', '.join(TROT_FEET)}; missing {', '.join(missing)}"))
         if self.robot not in NAMED_ROBOTS and feet is None:
-            out.append(("walking.feet", "required for a URDF robot: FL, FR, HL, HR, each "
+            out.append(("walking.feet", "required for a URDF or example-robot-data:NAME robot: "
+                                        "FL, FR, HL, HR, each "
                                         "{frame: NAME} or {link: NAME, offset: [x, y, z]}"))
         out += self._world_problems()
         return out
@@ -331,8 +343,8 @@ class LeggedExperimentConfig(Strict):
 
     def urdf_path(self, base_dir: Path | None) -> Path | None:
         """The URDF file (relative paths from ``base_dir``, the config's directory), or None
-        for a named robot."""
-        if self.robot in NAMED_ROBOTS:
+        for a named robot or one of example-robot-data."""
+        if self.robot in NAMED_ROBOTS or self.robot.startswith(ERD):
             return None
         path = Path(self.robot).expanduser()
         return path if path.is_absolute() or base_dir is None else Path(base_dir) / path

@@ -30,7 +30,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from feltool._version import __version__
-from feltool.config.legged import LeggedExperimentConfig, legged_config_yaml
+from feltool.config.legged import LeggedExperimentConfig, TrotGaitConfig, legged_config_yaml
 from feltool.errors import ConfigError, InputError, RobotError
 from feltool.files import WriteError, make_dirs
 from feltool.runs.checkpoint import Interrupted
@@ -90,8 +90,13 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
             import example_robot_data as erd
 
             name = cfg.robot.split(":")[-1]
-            robot = erd.load(name)
-            default = SOLO12_FEET if name == "solo12" else TALOS_FEET
+            try:
+                robot = erd.load(name)
+            except ValueError:
+                raise ConfigError([("robot", f"example-robot-data has no robot '{name}' (its "
+                                             "quadrupeds: a1, anymal, anymal_c, b1, go1, go2, "
+                                             "hyq, solo12)")]) from None
+            default = {"solo12": SOLO12_FEET, "talos_legs": TALOS_FEET}.get(name)
             legged = legged_model(robot.model, feet or default, q0=np.array(robot.q0),
                                   effort=cfg.effort, name=name)
         elif not path.is_file():
@@ -123,29 +128,45 @@ def world(cfg: LeggedExperimentConfig, legged) -> str:
 
 def describe(cfg: LeggedExperimentConfig, legged) -> str:
     """One line: the robot, gait, plant, unknown world and seeds (``feltool check``)."""
-    g = cfg.walking.walk or cfg.walking.gait
+    g = cfg.walking.walk or gait_and_controller(cfg, legged)[0]
     load = world(cfg, legged) + ("" if cfg.change_cycle is None else
                                  f" from cycle {cfg.change_cycle}")
     return (f"robot {legged.name} ({legged.mass:.3g} kg, {legged.nv - 6} motors, limit "
             f"{float(np.max(legged.effort)):g} N m, feet {', '.join(legged.feet)}), "
             f"{'walk' if cfg.walking.walk else 'trot'} "
-            f"{g.speed:g} m/s, period {g.period:g} s, plant {cfg.plant.simulator}, {load}, "
+            f"{g.speed:.3g} m/s, period {g.period:.3g} s, plant {cfg.plant.simulator}, {load}, "
             f"learning {'on' if cfg.learning.enabled else 'off'}, {len(cfg.seed_list)} seeds x "
             f"{cfg.sim.cycles} cycles")
 
 
 def gait_and_controller(cfg: LeggedExperimentConfig, legged):
     """The config's gait (the trot, or a biped's walk) and the controller's other arguments
-    (the walk's gains, :func:`~feltool.walking.legged.walk.biped_gains`)."""
+    (the trot's gains and the timing the config leaves out scaled from Solo-12's to the robot,
+    :mod:`~feltool.walking.legged.similar`; the walk's gains,
+    :func:`~feltool.walking.legged.walk.biped_gains`)."""
+    from feltool.walking.legged.similar import trot_gains, trot_timing
     from feltool.walking.legged.trot import TrotGait
     from feltool.walking.legged.walk import biped_gains, biped_walk
 
     walk = cfg.walking.walk
     if walk is None:
-        return TrotGait(**cfg.walking.gait.model_dump()), {}
+        gait = cfg.walking.gait
+        given = gait.model_dump(include=gait.model_fields_set)
+        return TrotGait(**{**trot_timing(legged, gait.model_dump()), **given}), \
+            trot_gains(legged)
     timing = walk.model_dump(exclude={"left", "right"})
     gait = biped_walk(legged, legged.standing(), tuple(walk.left), tuple(walk.right), **timing)
     return gait, biped_gains(legged)
+
+
+def robot_timing(cfg: LeggedExperimentConfig, legged) -> LeggedExperimentConfig:
+    """``cfg`` with the trot's timing the robot runs (:func:`gait_and_controller`: the fields
+    the config left out scaled to the robot), as ``config.yaml`` records it."""
+    if cfg.walking.walk is not None:
+        return cfg
+    gait = gait_and_controller(cfg, legged)[0]
+    timing = TrotGaitConfig(**{k: float(getattr(gait, k)) for k in TrotGaitConfig.model_fields})
+    return cfg.model_copy(update={"walking": cfg.walking.model_copy(update={"gait": timing})})
 
 
 def acquire_reference(cfg: LeggedExperimentConfig, legged):
@@ -280,7 +301,8 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
         if resume:
             check_resumable(out_dir, cfg, seeds, cycles)
         else:
-            atomic_write(out_dir / "config.yaml", legged_config_yaml(cfg, base_dir))
+            atomic_write(out_dir / "config.yaml",
+                         legged_config_yaml(robot_timing(cfg, legged), base_dir))
             write_json(out_dir / "run.json", {
                 "source": str(source.resolve()) if source else None, "raw": raw,
                 "seeds": seeds, "cycles": cycles, "kind": "legged",

@@ -1,0 +1,154 @@
+"""A quadruped's trot scaled from Solo-12's by dynamic similarity (feltool/walking/legged/
+similar.py): the laws checked against robots built here (Solo-12 with its masses, or its whole
+geometry, scaled), and quadrupeds as published trotting with nothing tuned for them."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, fields
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+
+from feltool.cli.main import main
+from feltool.walking.legged.learn import learn_trot
+from feltool.walking.legged.model import SOLO12_FEET, legged_model, load_solo12, scaled_masses
+from feltool.walking.legged.similar import body_scale, trot_gains, trot_timing
+from feltool.walking.legged.trot import TrotController, TrotGait
+
+GAIT = {f.name: getattr(TrotGait(), f.name) for f in fields(TrotGait)
+        if isinstance(getattr(TrotGait(), f.name), float)}
+
+
+def _expected_gains(mass: float, legs: float, lam: float) -> dict:
+    """Solo-12's tuned gains under Froude similarity, written out: [N/m] * m / L, [N s/m] *
+    m / sqrt(L), [N m/rad] * m L, [N m s/rad] * m L^1.5, [N] * m (base: the whole mass; joints
+    and swing feet: the legs')."""
+    r = np.sqrt(lam)
+    return {"height": (200.0 * mass / lam, 20.0 * mass / r),
+            "tilt": (20.0 * mass * lam, 1.0 * mass * lam * r),
+            "yaw_rate": 0.5 * mass * lam * r,
+            "joints": (3.0 * legs * lam, 0.1 * legs * lam * r),
+            "horizontal": (100.0 * mass / lam, 10.0 * mass / r),
+            "swing_gains": (600.0 * legs / lam, 20.0 * legs / r),
+            "normal_force_min": 2.0 * mass}
+
+
+def _flat(gains: dict) -> dict:
+    out = asdict(gains["gains"])
+    out.update({k: gains[k] for k in ("horizontal", "swing_gains", "normal_force_min")})
+    return out
+
+
+def _solo_scaled(lam: float):
+    """Solo-12 with every length times ``lam``, every mass times ``lam**3`` (the same
+    material), its rotational inertias times ``lam**5``, its motors' limit times ``lam**4``."""
+    solo = load_solo12(effort=2.7)
+    model = pin.Model(solo.model)
+    for j in range(1, model.njoints):
+        p = model.jointPlacements[j]
+        model.jointPlacements[j] = pin.SE3(p.rotation, lam * p.translation)
+        own = model.inertias[j]
+        model.inertias[j] = pin.Inertia(own.mass * lam ** 3, own.lever * lam,
+                                        own.inertia * lam ** 5)
+    for f in model.frames:
+        f.placement = pin.SE3(f.placement.rotation, lam * f.placement.translation)
+    q0 = solo.standing().copy()
+    q0[:3] *= lam
+    return legged_model(model, SOLO12_FEET, q0=q0, effort=2.7 * lam ** 4, name="big_solo")
+
+
+def test_solo12_is_the_tuned_robot_every_factor_exactly_one():
+    solo = load_solo12(effort=2.7)
+    s = body_scale(solo)
+    assert (s.mass, s.legs, s.length) == (1.0, 1.0, 1.0)
+    defaults = TrotController(solo, solo.standing())
+    gains = trot_gains(solo)
+    assert gains["gains"] == defaults.gains
+    for key in ("horizontal", "swing_gains", "normal_force_min"):
+        assert gains[key] == getattr(defaults, key)
+    assert trot_timing(solo, GAIT) == GAIT
+
+
+def test_heavier_bodies_scale_the_gains_by_the_mass_and_keep_the_timing():
+    heavy = scaled_masses(load_solo12(effort=2.7), 3.0)
+    s = body_scale(heavy)
+    assert s.mass == pytest.approx(3.0, rel=1e-12) and s.legs == pytest.approx(3.0, rel=1e-12)
+    assert s.length == 1.0
+    want = _expected_gains(3.0, 3.0, 1.0)
+    for key, value in _flat(trot_gains(heavy)).items():
+        assert np.allclose(value, want[key], rtol=1e-12), key
+    assert trot_timing(heavy, GAIT) == pytest.approx(GAIT, rel=1e-12)
+
+
+def test_a_twice_as_large_solo_gets_froude_scaled_gains_and_timing():
+    big = _solo_scaled(2.0)
+    s = body_scale(big)
+    assert s.length == pytest.approx(2.0, rel=1e-9)
+    assert s.mass == pytest.approx(8.0, rel=1e-12) and s.legs == pytest.approx(8.0, rel=1e-12)
+    want = _expected_gains(8.0, 8.0, 2.0)
+    for key, value in _flat(trot_gains(big)).items():
+        assert np.allclose(value, want[key], rtol=1e-9), key
+    timing = trot_timing(big, GAIT)
+    assert timing["period"] == pytest.approx(0.3 * np.sqrt(2.0), rel=1e-9)
+    assert timing["speed"] == pytest.approx(0.3 * np.sqrt(2.0), rel=1e-9)
+    assert timing["step_height"] == pytest.approx(0.08, rel=1e-9)
+    assert timing["catch"] == GAIT["catch"] and timing["ramp"] == GAIT["ramp"]
+
+
+def test_the_large_solo_trots_on_scaled_gains_and_not_on_solos_own():
+    """The twice-as-large Solo-12 (8 times the mass): with the trot scaled to it, 3 cycles
+    physically, roll and pitch within 0.05 rad; with Solo-12's own gains and timing its feet
+    leave the trot's physics before 3 cycles."""
+    big = _solo_scaled(2.0)
+    gait = TrotGait(**trot_timing(big, GAIT))
+    run = learn_trot(big, cycles=3, payload=0.0, gait=gait, controller=trot_gains(big),
+                     acquire=0)
+    assert run.kind is None and len(run.feedback) == 3, run.log.not_walking
+    assert np.abs(run.log.roll).max() < 0.05 and np.abs(run.log.pitch).max() < 0.05
+    assert run.speed == pytest.approx(gait.speed, rel=0.15)
+    own = learn_trot(big, cycles=3, payload=0.0, acquire=0)
+    assert own.kind is not None and len(own.feedback) < 3
+
+
+#: Go1 as a config names it: example-robot-data's robot and its feet's frames, nothing else
+GO1 = {"name": "go1", "robot": "example-robot-data:go1",
+       "walking": {"base": "free_flyer", "acquire": 0,
+                   "feet": {"FL": {"frame": "FL_foot"}, "FR": {"frame": "FR_foot"},
+                            "HL": {"frame": "RL_foot"}, "HR": {"frame": "RR_foot"}}},
+       "sim": {"cycles": 4}, "seeds": [0]}
+
+
+def test_go1_as_published_trots_from_a_config_naming_only_its_feet(tmp_path, capsys):
+    """example-robot-data's Go1 (13.1 kg; its reference posture example-robot-data's): 4 cycles
+    walked through `feltool run`, the run's config.yaml recording the timing it trotted with
+    (Solo-12's scaled: the period by the square root of the height ratio)."""
+    out, path = tmp_path / "run", tmp_path / "go1.yaml"
+    path.write_text(yaml.safe_dump(GO1))
+    assert main(["run", str(path), "--out", str(out), "--no-progress"]) == 0
+    seed = json.loads((out / "summary.json").read_text())["seeds"][0]
+    assert seed["walked"] and seed["cycles"] == 4, seed
+    import example_robot_data as erd
+
+    robot = erd.load("go1")
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, robot.q0)
+    feet = [data.oMf[robot.model.getFrameId(f"{f}_foot")].translation[2]
+            for f in ("FL", "FR", "RL", "RR")]
+    lam = (robot.q0[2] - np.mean(feet)) / 0.21589724826917053
+    gait = yaml.safe_load((out / "config.yaml").read_text())["walking"]["gait"]
+    assert gait["period"] == pytest.approx(0.3 * np.sqrt(lam), rel=1e-9)
+    assert gait["step_height"] == pytest.approx(0.04 * lam, rel=1e-9)
+    capsys.readouterr()
+
+
+def test_go1_on_solos_unscaled_trot_slides_at_its_first_touchdown():
+    """What the scaling is for: Go1 on Solo-12's gains and timing does not trot."""
+    from feltool.config.legged import parse_legged_config
+    from feltool.runs.legged import load_legged_robot
+
+    go1 = load_legged_robot(parse_legged_config(GO1))
+    run = learn_trot(go1, cycles=3, payload=0.0, acquire=0)
+    assert run.kind is not None and len(run.feedback) == 0, run.log.not_walking
