@@ -4,6 +4,7 @@ geometry, scaled), and quadrupeds as published trotting with nothing tuned for t
 
 from __future__ import annotations
 
+import csv
 import json
 from dataclasses import asdict, fields
 
@@ -17,6 +18,8 @@ from feltool.walking.legged.learn import learn_trot
 from feltool.walking.legged.model import SOLO12_FEET, legged_model, load_solo12, scaled_masses
 from feltool.walking.legged.similar import body_scale, trot_gains, trot_timing
 from feltool.walking.legged.trot import TrotController, TrotGait
+
+from .conftest import CONFIGS, feltool
 
 GAIT = {f.name: getattr(TrotGait(), f.name) for f in fields(TrotGait)
         if isinstance(getattr(TrotGait(), f.name), float)}
@@ -152,3 +155,31 @@ def test_go1_on_solos_unscaled_trot_slides_at_its_first_touchdown():
     go1 = load_legged_robot(parse_legged_config(GO1))
     run = learn_trot(go1, cycles=3, payload=0.0, acquire=0)
     assert run.kind is not None and len(run.feedback) == 0, run.log.not_walking
+
+
+def test_the_shipped_go1_config_learns_shortened(tmp_path):
+    """configs/legged/go1_trot.yaml shortened for CI (its full run in the config's comment and
+    docs/legged.md): seeds 0 and 1, 12 cycles, the payload at cycle 2, the reference acquired
+    in 2 rounds, the bound 0.25: every cycle physical, the payload's feedback taken back
+    (0.167 of the change's by cycle 11 when measured)."""
+    raw = yaml.safe_load((CONFIGS / "legged" / "go1_trot.yaml").read_text())
+    assert raw["robot"] == "example-robot-data:go1" and raw["seeds"] == 10
+    assert raw["success"] == {"ratio_from": "change", "fb_ratio_max": 0.15}
+    raw["payload"]["cycle"], raw["walking"]["acquire"] = 2, 2
+    raw["success"]["fb_ratio_max"] = 0.25
+    path, out = tmp_path / "go1.yaml", tmp_path / "run"
+    path.write_text(yaml.safe_dump(raw))
+    proc = feltool("run", str(path), "--seeds", "0-1", "--cycles", "12", "--out", str(out),
+                   "--no-progress")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    for s in summary["seeds"]:
+        assert s["walked"] and s["cycles"] == 12, s
+        assert s["fb_before_change"] < 0.1 * s["fb_change"]
+        assert s["fb_ratio_change"] < 0.25
+        assert s["stats"]["torque_hits"] == 0
+    with open(out / "metrics.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    for seed in ("0", "1"):
+        fb = [float(r["fb_total"]) for r in rows if r["seed"] == seed]
+        assert fb[3] > fb[5] > fb[8] > fb[11]  # falling after the change
