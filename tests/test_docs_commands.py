@@ -82,6 +82,10 @@ EXEMPT = {
                                                          "walking on MuJoCo, ~1 h "
                                                          "(tests/test_legged_config.py walks it "
                                                          "2 cycles through the command)",
+    "feltool run configs/legged/go1_trot.yaml": "10 seeds x 60 cycles of Go1, ~5 min "
+                                                "(tests/test_legged_similar.py runs it short "
+                                                "through the command; 8 cycles would not reach "
+                                                "its bound)",
 }
 #: A command with one of these needs a service that is not here.
 NEEDS_SERVICE = ("--zmq-url", "--scheduler")
