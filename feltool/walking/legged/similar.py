@@ -15,8 +15,8 @@ masses :math:`m_1, m_2` and lengths :math:`L_1, L_2` move alike when times scale
   :math:`\mu \lambda` and [N m s/rad] by :math:`\mu \lambda^{3/2}`; forces [N] by :math:`\mu`.
 
 The base's gains scale with the whole robot's mass, the joints' PD and the swing feet's
-Cartesian PD with the legs' (the bodies between the base and the feet): ANYmal's and HyQ's
-legs are half their mass, Solo's a half of that. :math:`L` is the base's height above its
+Cartesian PD with the legs' (the bodies between the base and the feet, which they move: 54 %
+of Solo-12's mass, 58 % of Go1's, 30 % of HyQ's). :math:`L` is the base's height above its
 feet in the reference posture. For Solo-12 every factor is 1 (the tuned numbers themselves).
 """
 
