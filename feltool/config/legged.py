@@ -91,6 +91,36 @@ class WalkGaitConfig(Strict):
                                  "the first step, in [s].")
 
 
+#: A PD pair: (stiffness, damping), each >= 0
+Gains = tuple[Annotated[float, Field(ge=0.0, le=1e7, allow_inf_nan=False)],
+              Annotated[float, Field(ge=0.0, le=1e7, allow_inf_nan=False)]]
+
+
+class LeggedGainsConfig(Strict):
+    """The whole-body controller's gains (feltool/walking/legged/control.py, trot.py). Each one
+    left out is the robot's default: for a trot Solo-12's scaled to the robot by dynamic
+    similarity (feltool/walking/legged/similar.py), for a walk Talos' scaled by its mass
+    (feltool/walking/legged/walk.py ``biped_gains``); the run directory's config.yaml records
+    the gains it ran with."""
+
+    height: Gains | None = Field(None, description="[k_h, d_h] on the base's height, in [N/m] "
+                                 "and [N s/m].")
+    tilt: Gains | None = Field(None, description="[k_t, d_t] on the base's roll and pitch, in "
+                               "[N m/rad] and [N m s/rad].")
+    yaw_rate: Annotated[float, Field(ge=0.0, le=1e7, allow_inf_nan=False)] | None = Field(
+        None, description="d_y on the base's yaw rate, in [N m s/rad].")
+    joints: Gains | None = Field(None, description="[k_p, d_p] on every motor joint, in "
+                                 "[N m/rad] and [N m s/rad].")
+    horizontal: Gains | None = Field(None, description="[k, d] on the base's (a walk: the "
+                                     "centre of mass's) horizontal position, in [N/m] and "
+                                     "[N s/m].")
+    swing: Gains | None = Field(None, description="[k, d] of the Cartesian PD pulling each foot "
+                                "in the air to its target, in [N/m] and [N s/m].")
+    normal_force_min: Annotated[float, Field(ge=0.0, le=1e6, allow_inf_nan=False)] | None = \
+        Field(None, description="The least normal force the allocation leaves each stance "
+              "foot, in [N].")
+
+
 class LeggedWalkingConfig(Strict):
     """The legged robot's base and feet, and its gait."""
 
@@ -111,6 +141,8 @@ class LeggedWalkingConfig(Strict):
     walk: WalkGaitConfig | None = Field(None, description="A biped's walk instead of the trot "
         "(the feet are then the soles' corners, left and right; default for talos_legs: each "
         "sole's four corners L_* and R_*).")
+    gains: LeggedGainsConfig = Field(default_factory=LeggedGainsConfig, description="The "
+        "controller's gains, each left out the robot's default.")
     acquire: int = Field(4, ge=0, le=20, description="Rounds of the reference's acquisition "
         "on the known model before the seeds run, once for all of them [-] (the plan corrected "
         "by what the robot did in a settled cycle, feltool/walking/legged/orbit.py); 0: the "

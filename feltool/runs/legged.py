@@ -21,6 +21,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import sys
 import time
@@ -30,7 +31,12 @@ from typing import Any, TextIO
 import numpy as np
 
 from feltool._version import __version__
-from feltool.config.legged import LeggedExperimentConfig, TrotGaitConfig, legged_config_yaml
+from feltool.config.legged import (
+    LeggedExperimentConfig,
+    LeggedGainsConfig,
+    TrotGaitConfig,
+    legged_config_yaml,
+)
 from feltool.errors import ConfigError, InputError, RobotError
 from feltool.files import WriteError, make_dirs
 from feltool.runs.checkpoint import Interrupted
@@ -140,10 +146,10 @@ def describe(cfg: LeggedExperimentConfig, legged) -> str:
 
 
 def gait_and_controller(cfg: LeggedExperimentConfig, legged):
-    """The config's gait (the trot, or a biped's walk) and the controller's other arguments
-    (the trot's gains and the timing the config leaves out scaled from Solo-12's to the robot,
-    :mod:`~feltool.walking.legged.similar`; the walk's gains,
-    :func:`~feltool.walking.legged.walk.biped_gains`)."""
+    """The config's gait (the trot, or a biped's walk) and the controller's other arguments:
+    the gains ``walking.gains`` gives, the others the robot's defaults (a trot's Solo-12's
+    scaled to the robot, :mod:`~feltool.walking.legged.similar`, with the timing the config
+    leaves out; a walk's :func:`~feltool.walking.legged.walk.biped_gains`)."""
     from feltool.walking.legged.similar import trot_gains, trot_timing
     from feltool.walking.legged.trot import TrotGait
     from feltool.walking.legged.walk import biped_gains, biped_walk
@@ -152,21 +158,47 @@ def gait_and_controller(cfg: LeggedExperimentConfig, legged):
     if walk is None:
         gait = cfg.walking.gait
         given = gait.model_dump(include=gait.model_fields_set)
-        return TrotGait(**{**trot_timing(legged, gait.model_dump()), **given}), \
-            trot_gains(legged)
-    timing = walk.model_dump(exclude={"left", "right"})
-    gait = biped_walk(legged, legged.standing(), tuple(walk.left), tuple(walk.right), **timing)
-    return gait, biped_gains(legged)
+        gait = TrotGait(**{**trot_timing(legged, gait.model_dump()), **given})
+        extra = trot_gains(legged)
+    else:
+        timing = walk.model_dump(exclude={"left", "right"})
+        gait = biped_walk(legged, legged.standing(), tuple(walk.left), tuple(walk.right),
+                          **timing)
+        extra = biped_gains(legged)
+    return gait, _with_gains(extra, cfg.walking.gains)
 
 
-def robot_timing(cfg: LeggedExperimentConfig, legged) -> LeggedExperimentConfig:
-    """``cfg`` with the trot's timing the robot runs (:func:`gait_and_controller`: the fields
-    the config left out scaled to the robot), as ``config.yaml`` records it."""
-    if cfg.walking.walk is not None:
-        return cfg
-    gait = gait_and_controller(cfg, legged)[0]
-    timing = TrotGaitConfig(**{k: float(getattr(gait, k)) for k in TrotGaitConfig.model_fields})
-    return cfg.model_copy(update={"walking": cfg.walking.model_copy(update={"gait": timing})})
+#: ``walking.gains``' fields that are :class:`~feltool.walking.legged.control.StandGains`'
+BASE_GAINS = ("height", "tilt", "yaw_rate", "joints")
+
+
+def _with_gains(extra: dict, gains) -> dict:
+    """The controller's arguments ``extra`` with the gains the config gives."""
+    given = gains.model_dump(exclude_none=True)
+    out = dict(extra)
+    out["gains"] = dataclasses.replace(extra["gains"], **{k: v for k, v in given.items()
+                                                          if k in BASE_GAINS})
+    for key, name in (("horizontal", "horizontal"), ("swing", "swing_gains"),
+                      ("normal_force_min", "normal_force_min")):
+        if key in given:
+            out[name] = given[key]
+    return out
+
+
+def as_run(cfg: LeggedExperimentConfig, legged) -> LeggedExperimentConfig:
+    """``cfg`` with the gains and the trot's timing the robot runs with
+    (:func:`gait_and_controller`: the robot's defaults where the config leaves them out), as
+    ``config.yaml`` records it."""
+    gait, extra = gait_and_controller(cfg, legged)
+    g = extra["gains"]
+    gains = LeggedGainsConfig(**{k: getattr(g, k) for k in BASE_GAINS},
+                              horizontal=extra["horizontal"], swing=extra["swing_gains"],
+                              normal_force_min=extra["normal_force_min"])
+    walking = {"gains": gains}
+    if cfg.walking.walk is None:
+        walking["gait"] = TrotGaitConfig(**{k: float(getattr(gait, k))
+                                            for k in TrotGaitConfig.model_fields})
+    return cfg.model_copy(update={"walking": cfg.walking.model_copy(update=walking)})
 
 
 def acquire_reference(cfg: LeggedExperimentConfig, legged):
@@ -302,7 +334,7 @@ def run_legged(cfg: LeggedExperimentConfig, raw: dict, source: Path | None, out_
             check_resumable(out_dir, cfg, seeds, cycles)
         else:
             atomic_write(out_dir / "config.yaml",
-                         legged_config_yaml(robot_timing(cfg, legged), base_dir))
+                         legged_config_yaml(as_run(cfg, legged), base_dir))
             write_json(out_dir / "run.json", {
                 "source": str(source.resolve()) if source else None, "raw": raw,
                 "seeds": seeds, "cycles": cycles, "kind": "legged",
