@@ -78,14 +78,22 @@ def cmd_view(args: argparse.Namespace) -> int:
         print(write_rollout_html(robot, args.run_dir, seed, cycles,
                                  path=args.run_dir / name))
         return 0
-    from feltool.viewer.live import LiveViewer
     from feltool.viewer.rollout import replay
 
+    return serve(args, robot, lambda viewer, left: replay(viewer, args.run_dir, seed, cycles,
+                                                          loops=args.loops, timeout_s=left))
+
+
+def serve(args: argparse.Namespace, robot, play: Callable[[object, float | None], object],
+          **options) -> int:
+    """``feltool view``'s live viewer of ``robot`` (``options``: the
+    :class:`~feltool.viewer.live.LiveViewer`'s), ``play(viewer, timeout_s)`` in it, kept up
+    by :func:`keep_viewing` (SIGTERM ends it as Ctrl-C does); exit code 0."""
+    from feltool.viewer.live import LiveViewer
+
     exit_on_sigterm()
-    with LiveViewer(robot, zmq_url=args.zmq_url) as viewer:
-        keep_viewing(viewer, lambda left: replay(viewer, args.run_dir, seed, cycles,
-                                                 loops=args.loops, timeout_s=left),
-                     args.view_timeout)
+    with LiveViewer(robot, zmq_url=args.zmq_url, **options) as viewer:
+        keep_viewing(viewer, lambda left: play(viewer, left), args.view_timeout)
     return 0
 
 
@@ -112,13 +120,8 @@ def view_legged(args: argparse.Namespace) -> int:
         name = "rollout.html" if args.seed is None else f"rollout-seed{args.seed}.html"
         print(write_legged_html(args.run_dir, robot, args.seed, path=args.run_dir / name))
         return 0
-    from feltool.viewer.live import LiveViewer
-
-    exit_on_sigterm()
-    with LiveViewer(robot, zmq_url=args.zmq_url, ghost=False) as viewer:
-        keep_viewing(viewer, lambda left: replay_legged(viewer, args.run_dir, seed, args.loops,
-                                                        timeout_s=left), args.view_timeout)
-    return 0
+    return serve(args, robot, lambda viewer, left: replay_legged(
+        viewer, args.run_dir, seed, args.loops, timeout_s=left), ghost=False)
 
 
 def add_command(sub) -> None:
