@@ -86,6 +86,9 @@ EXEMPT = {
                                                 "(tests/test_legged_similar.py runs it short "
                                                 "through the command; 8 cycles would not reach "
                                                 "its bound)",
+    "feltool run configs/legged/go1_trot_mujoco.yaml": "10 seeds x 60 cycles of Go1 on MuJoCo, "
+                                                       "~8 min (tests/test_legged_similar.py "
+                                                       "runs it short through the command)",
 }
 #: A command with one of these needs a service that is not here.
 NEEDS_SERVICE = ("--zmq-url", "--scheduler")
