@@ -209,3 +209,59 @@ def test_gains_from_the_config_reach_the_controller_and_are_recorded(tmp_path, c
     assert main(["check", str(path)]) == 2
     err = capsys.readouterr().err
     assert "walking.gains.height" in err and err.count("\n") == 1, err
+
+
+def test_the_joint_loop_radius_is_the_held_pd_on_the_joints_inertia():
+    """Against the loop built here: the joint's inertia from the inverse of Pinocchio's CRBA
+    mass matrix, the double integrator under a torque held over the step discretized by
+    scipy's matrix exponential, the PD closed around it."""
+    from scipy.linalg import expm
+
+    from feltool.walking.legged.control import joint_loop_radius
+
+    solo = load_solo12(effort=2.7)
+    q = solo.standing()
+    M = pin.crba(solo.model, solo.model.createData(), q)
+    M = np.triu(M) + np.triu(M, 1).T
+    inertia = 1.0 / np.diag(np.linalg.inv(M))[6:]
+    for gains, rate in (((3.0, 0.1), 1000.0), ((3.0, 1.2), 1000.0), ((50.0, 0.5), 400.0)):
+        h = 1.0 / rate
+        want = []
+        for I in inertia:
+            G = expm(np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0 / I], [0.0, 0.0, 0.0]]) * h)
+            A = G[:2, :2] + np.outer(G[:2, 2], -np.array(gains))
+            want.append(np.abs(np.linalg.eigvals(A)).max())
+        got = joint_loop_radius(solo, q, gains, rate)
+        assert np.allclose(got, want, rtol=1e-10, atol=0), (gains, rate)
+
+
+def test_joint_gains_that_diverge_are_refused_naming_them_and_do_diverge(tmp_path, capsys):
+    """Solo-12's joints' damping 10 N m s/rad: its knees' own loop grows at 1 kHz; the config
+    is refused (exit 2, nothing written, walking.gains.joints named with the joint). The same
+    gains trotting (a swing leg's joints are free) chatter: the motor torques change sign
+    from one control step to the next at nine steps in ten, at their limit, and the trot
+    stops within 0.3 s; on Solo's own gains it trots its 2 cycles."""
+    from feltool.walking.legged.control import StandGains, joint_loop_radius
+
+    solo = load_solo12(effort=2.7)
+    assert joint_loop_radius(solo, solo.standing(), (3.0, 10.0), 1000.0).max() > 1.0
+    raw = yaml.safe_load((CONFIGS / "legged" / "solo12_trot.yaml").read_text())
+    raw["walking"]["gains"] = {"joints": [3.0, 10.0]}
+    path = tmp_path / "trot.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["run", str(path), "--out", str(tmp_path / "never")]) == 2
+    err = capsys.readouterr().err
+    assert "walking.gains.joints: [3, 10] make" in err and "_KFE's own loop diverge" in err, err
+    assert "Traceback" not in err and err.count("\n") == 1
+    assert not (tmp_path / "never").exists()
+    for joints, trots in (((3.0, 10.0), False), ((3.0, 0.1), True)):
+        run = learn_trot(solo, cycles=2, payload=0.0, acquire=0,
+                         controller={"gains": StandGains(joints=joints)})
+        du = np.diff(run.log.u, axis=0)
+        flips = np.mean(du[1:] * du[:-1] < 0)
+        assert (run.kind is None and len(run.feedback) == 2) == trots, run.log.not_walking
+        if not trots:
+            assert run.log.t[-1] < 0.3 and flips > 0.9
+            assert np.abs(run.log.u).max() == pytest.approx(2.7)
+        else:
+            assert flips < 0.1

@@ -110,7 +110,9 @@ class LeggedGainsConfig(Strict):
     yaw_rate: Annotated[float, Field(ge=0.0, le=1e7, allow_inf_nan=False)] | None = Field(
         None, description="d_y on the base's yaw rate, in [N m s/rad].")
     joints: Gains | None = Field(None, description="[k_p, d_p] on every motor joint, in "
-                                 "[N m/rad] and [N m s/rad].")
+                                 "[N m/rad] and [N m s/rad]; refused when they make a joint's "
+                                 "own loop diverge at sim.rate_hz (the torque held over a "
+                                 "control step on the joint's inertia, the others free).")
     horizontal: Gains | None = Field(None, description="[k, d] on the base's (a walk: the "
                                      "centre of mass's) horizontal position, in [N/m] and "
                                      "[N s/m].")

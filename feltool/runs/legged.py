@@ -31,6 +31,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from feltool._version import __version__
+from feltool.bounds import MAX_RATE_HZ
 from feltool.config.legged import (
     LeggedExperimentConfig,
     LeggedGainsConfig,
@@ -109,11 +110,41 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
             raise ConfigError([("robot", f"{path}: no such URDF file")])
         else:
             legged = load_legged_urdf(path, feet, effort=cfg.effort)
-        return with_posture(legged, cfg.walking.posture or {})
+        legged = with_posture(legged, cfg.walking.posture or {})
+        check_joint_gains(cfg, legged)
+        return legged
     except RobotError as exc:
         raise ConfigError([("robot", str(exc))], source) from None
     except ConfigError as exc:
         raise ConfigError(exc.problems, source) from None
+
+
+def check_joint_gains(cfg: LeggedExperimentConfig, legged) -> None:
+    """Refuse joint gains whose loop around a joint alone diverges at the control rate
+    (:func:`~feltool.walking.legged.control.joint_loop_radius`, in the reference posture): a
+    :class:`ConfigError` naming ``walking.gains.joints``, the joint and what would do."""
+    from feltool.walking.legged.control import joint_loop_radius
+
+    joints = gait_and_controller(cfg, legged)[1]["gains"].joints
+    rate = cfg.sim.rate_hz
+    radius = joint_loop_radius(legged, legged.standing(), joints, rate)
+    if radius.max() < 1.0:
+        return
+    i = int(radius.argmax())
+    bad = [legged.motors[j] for j in np.flatnonzero(radius >= 1.0)]
+    # the damping that keeps that joint's loop inside the unit circle at this rate (b < 2,
+    # with the stiffness's share) and the rate at which the gains would be stable for it
+    ok_rate = rate
+    while joint_loop_radius(legged, legged.standing(), joints, ok_rate)[i] >= 1.0 \
+            and ok_rate < 1e7:
+        ok_rate *= 1.25
+    others = f" ({len(bad) - 1} other joints too)" if len(bad) > 1 else ""
+    raise ConfigError([("walking.gains.joints", (
+        f"[{joints[0]:.4g}, {joints[1]:.4g}] make {legged.motors[i]}'s own loop diverge"
+        f"{others}: fed back every 1/sim.rate_hz = {1e3 / rate:.3g} ms on the joint's inertia "
+        f"(the other joints free), its error grows {radius[i]:.3g} times per control step; "
+        f"lower the joints' gains or raise sim.rate_hz (these gains need {ok_rate:.3g} Hz "
+        f"for it, at most {MAX_RATE_HZ:g})"))])
 
 
 def world(cfg: LeggedExperimentConfig, legged) -> str:

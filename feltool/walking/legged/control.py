@@ -87,6 +87,34 @@ class StandGains:
     joints: tuple[float, float] = (3.0, 0.1)
 
 
+def joint_loop_radius(legged: LeggedModel, q: np.ndarray, joints: tuple[float, float],
+                      rate_hz: float) -> np.ndarray:
+    r"""``(k,)``: per motor, the spectral radius of its joint PD ``joints`` = ``(k_p [N m/rad],
+    k_d [N m s/rad])`` closed around the joint alone at the control rate ``rate_hz`` [Hz]: the
+    torque computed from the state at a control step and held over it (zero-order hold) on the
+    joint's apparent inertia :math:`I = 1 / (M^{-1})_{jj}` at ``q`` (the other joints free),
+
+    .. math::
+
+        \begin{pmatrix} q \\ \dot q \end{pmatrix}_{k+1} =
+        \begin{pmatrix} 1 - a/2 & h (1 - b/2) \\ -a/h & 1 - b \end{pmatrix}
+        \begin{pmatrix} q \\ \dot q \end{pmatrix}_k, \quad
+        a = k_p h^2 / I, \ b = k_d h / I, \ h = 1/\mathrm{rate}.
+
+    At 1 or above the joint's own feedback loop diverges, whatever the rest of the controller
+    does (the damping alone when :math:`b > 2`)."""
+    Minv = pin.computeMinverse(legged.model, legged.data, q)
+    Minv = np.triu(Minv) + np.triu(Minv, 1).T
+    inertia = 1.0 / np.diag(Minv)[6:]
+    h = 1.0 / rate_hz
+    out = np.empty(len(inertia))
+    for i, I in enumerate(inertia):
+        a, b = joints[0] * h ** 2 / I, joints[1] * h / I
+        A = np.array([[1.0 - a / 2, h * (1.0 - b / 2)], [-a / h, 1.0 - b]])
+        out[i] = np.abs(np.linalg.eigvals(A)).max()
+    return out
+
+
 @dataclass
 class Allocation:
     """One allocation.
