@@ -239,8 +239,10 @@ BAD = [
      "robot: example-robot-data has no robot 'nonsense'"),
     ({"robot": "example-robot-data:ur5", "walking__feet": SOLO_FEET},
      "robot: ur5: a legged robot's first joint must be a free flyer"),
-    ({"robot": "example-robot-data:go1", "walking__feet": None},
-     "walking.feet: required for a URDF or example-robot-data:NAME robot"),
+    ({"robot": "example-robot-data:talos", "walking__feet": None},
+     "walking.feet: required: example-robot-data's talos names no feet lf_*, rf_*, lh_*, rh_*"),
+    ({"robot": "example-robot-data:ur5", "walking__feet": None},
+     "robot: ur5: a legged robot's first joint must be a free flyer"),
     ({"robot": "example-robot-data:go1", "walking__feet": {
         "FL": {"frame": "FL_FOOT"}, "FR": {"frame": "FR_foot"}, "HL": {"frame": "RL_foot"},
         "HR": {"frame": "RR_foot"}}}, "walking.feet.FL: no frame 'FL_FOOT' in go1"),
@@ -254,8 +256,7 @@ BAD = [
     ({"robot": "missing.urdf"}, "robot: "),
     ({"robot": "anymal"}, "robot: 'anymal' is neither solo12, talos_legs, "
                          "example-robot-data:NAME nor a URDF"),
-    ({"robot": "{urdf}", "walking__feet": None},
-     "walking.feet: required for a URDF or example-robot-data:NAME robot"),
+    ({"robot": "{urdf}", "walking__feet": None}, "walking.feet: required for a URDF robot"),
     ({"effort": -1}, "effort:"),
     ({"walking__posture": {"FL_KNEE": -1.6}}, "walking.posture.FL_KNEE: no motor joint 'FL_KNEE'"),
     ({"walking__posture": {"root_joint": 0.0}}, "walking.posture.root_joint: no motor joint"),

@@ -116,15 +116,27 @@ def test_the_large_solo_trots_on_scaled_gains_and_not_on_solos_own():
     assert own.kind is not None and len(own.feedback) < 3
 
 
-#: Go1 as a config names it: example-robot-data's robot and its feet's frames, nothing else
+#: Go1 as a config names it: example-robot-data's robot, nothing else (its feet its SRDF's)
 GO1 = {"name": "go1", "robot": "example-robot-data:go1",
-       "walking": {"base": "free_flyer", "acquire": 0,
-                   "feet": {"FL": {"frame": "FL_foot"}, "FR": {"frame": "FR_foot"},
-                            "HL": {"frame": "RL_foot"}, "HR": {"frame": "RR_foot"}}},
-       "sim": {"cycles": 4}, "seeds": [0]}
+       "walking": {"base": "free_flyer", "acquire": 0}, "sim": {"cycles": 4}, "seeds": [0]}
 
 
-def test_go1_as_published_trots_from_a_config_naming_only_its_feet(tmp_path, capsys):
+@pytest.mark.parametrize("name", ["go1", "anymal", "hyq"])
+def test_an_example_robot_data_quadrupeds_feet_come_from_its_srdf(name):
+    """Each foot where its name says, in the robot's reference posture: FL ahead and left of
+    the base, HR behind and right, ..., on the ground below it."""
+    from feltool.config.legged import parse_legged_config
+    from feltool.runs.legged import load_legged_robot
+
+    legged = load_legged_robot(parse_legged_config({**GO1, "robot": f"example-robot-data:{name}"}))
+    assert list(legged.feet) == ["FL", "FR", "HL", "HR"]
+    q = legged.standing()
+    P = legged.foot_positions(q) - q[:3]
+    assert np.all(np.sign(P[:, :2]) == [[1, 1], [1, -1], [-1, 1], [-1, -1]]), P
+    assert np.all(P[:, 2] < -0.1)
+
+
+def test_go1_as_published_trots_from_a_config_naming_only_the_robot(tmp_path, capsys):
     """example-robot-data's Go1 (13.1 kg; its reference posture example-robot-data's): 4 cycles
     walked through `feltool run`, the run's config.yaml recording the timing it trotted with
     (Solo-12's scaled: the period by the square root of the height ratio)."""

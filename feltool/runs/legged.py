@@ -94,18 +94,20 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
     path = cfg.urdf_path(base_dir)
     try:
         if path is None:
-            import example_robot_data as erd
+            from example_robot_data.robots_loader import load_full
 
             name = cfg.robot.split(":")[-1]
             try:
-                robot = erd.load(name)
+                robot, q0, _, srdf = load_full(name)
             except ValueError:
                 raise ConfigError([("robot", f"example-robot-data has no robot '{name}' (its "
                                              "quadrupeds: a1, anymal, anymal_c, b1, go1, go2, "
                                              "hyq, solo12)")]) from None
-            default = {"solo12": SOLO12_FEET, "talos_legs": TALOS_FEET}.get(name)
-            legged = legged_model(robot.model, feet or default, q0=np.array(robot.q0),
-                                  effort=cfg.effort, name=name)
+            m = robot.model
+            floating = m.njoints > 1 and m.joints[1].shortname() == "JointModelFreeFlyer"
+            feet = feet or {"solo12": SOLO12_FEET, "talos_legs": TALOS_FEET}.get(name) or \
+                (srdf_feet(name, srdf) if floating else {})  # else refused for its base
+            legged = legged_model(m, feet, q0=np.array(q0), effort=cfg.effort, name=name)
         elif not path.is_file():
             raise ConfigError([("robot", f"{path}: no such URDF file")])
         else:
@@ -117,6 +119,33 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
         raise ConfigError([("robot", str(exc))], source) from None
     except ConfigError as exc:
         raise ConfigError(exc.problems, source) from None
+
+
+#: An SRDF end effector's name prefix -> the trot's foot (example-robot-data's quadrupeds:
+#: lf_foot, rf_foot, lh_foot, rh_foot)
+SRDF_FEET = {"lf": "FL", "rf": "FR", "lh": "HL", "rh": "HR"}
+
+
+def srdf_feet(name: str, srdf: str | None) -> dict[str, dict]:
+    """The trot's feet of example-robot-data's robot ``name`` from its SRDF's end effectors
+    named ``lf_*``, ``rf_*``, ``lh_*``, ``rh_*`` (each its parent link's frame); a
+    :class:`ConfigError` naming ``walking.feet`` when it has not all four."""
+    import xml.etree.ElementTree as ET
+
+    feet = {}
+    try:
+        root = ET.parse(srdf).getroot() if srdf else None
+    except (OSError, ET.ParseError):
+        root = None
+    for effector in ([] if root is None else root.iter("end_effector")):
+        foot = SRDF_FEET.get(str(effector.get("name", "")).lower()[:2])
+        if foot and effector.get("parent_link"):
+            feet.setdefault(foot, {"frame": effector.get("parent_link")})
+    if len(feet) < 4:
+        raise ConfigError([("walking.feet", f"required: example-robot-data's {name} names no "
+                                            "feet lf_*, rf_*, lh_*, rh_* among its SRDF's end "
+                                            "effectors; give FL, FR, HL, HR")])
+    return {f: feet[f] for f in ("FL", "FR", "HL", "HR")}
 
 
 def check_joint_gains(cfg: LeggedExperimentConfig, legged) -> None:
