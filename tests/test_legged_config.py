@@ -227,6 +227,30 @@ def test_a_seed_that_stops_before_its_first_cycle_exits_1_with_its_figure(tmp_pa
     assert (out / "figures" / "legged_feedback.png").stat().st_size > 5_000
 
 
+def test_a_seed_that_stops_in_its_first_control_step_exits_1_and_says_why(tmp_path, capsys):
+    """Solo-8 from example-robot-data (two motors a leg, no abduction): its four feet's
+    contacts are dependent (their Jacobian's rank 10 of 12: no leg moves its foot sideways),
+    so the rigid plant has no contact forces at the first control step. The run says why,
+    exits 1 with its files and figure, --html says there is no motion to show (before, a
+    traceback: the rollout's speed was taken of no recorded state), and so does `feltool
+    view` (exit 2)."""
+    out = tmp_path / "run"
+    path = _config(tmp_path, robot="example-robot-data:solo8", walking__feet=None,
+                   walking__acquire=0, payload=None, success=None)
+    assert main(["run", str(path), "--seeds", "0", "--cycles", "2", "--out", str(out),
+                 "--no-progress", "--html"]) == 1
+    printed = capsys.readouterr()
+    assert "Traceback" not in printed.err, printed.err
+    assert "rollout: not shown" in printed.out and "no motion to show" in printed.out
+    entry = json.loads((out / "summary.json").read_text())["seeds"][0]
+    assert entry["cycles"] == 0 and entry["kind"] == "diverged"
+    assert "no finite contact forces" in entry["not_walking"]
+    assert (out / "figures" / "legged_feedback.png").is_file()
+    assert main(["view", str(out), "--html"]) == 2
+    err = capsys.readouterr().err
+    assert "seed 0 stopped in its first control step" in err and err.count("\n") == 1
+
+
 def _solo_urdf() -> str:
     import example_robot_data as erd
 

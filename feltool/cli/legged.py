@@ -57,7 +57,7 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
     out_dir = out_dir or default_out_dir(cfg.name)
     gait = "walk" if cfg.walking.walk else "trot"
     print(f"feltool: legged {gait}, {cfg.plant.simulator} plant (one seed at a time)", flush=True)
-    from feltool.cli.view import keep_viewing, watching
+    from feltool.cli.view import watching
     from feltool.viewer.legged import visual_robot
 
     robot = cache(lambda: visual_robot(cfg.robot, cfg.urdf_path(path.parent)))  # loaded once
@@ -80,16 +80,25 @@ def run_legged_command(args: argparse.Namespace, path: Path, raw: dict[str, Any]
                 if stream is not None:
                     stream.close()
         print_summary(summary, out_dir)
-        if args.html:
-            from feltool.viewer.legged import write_legged_html
+        if args.html or viewer is not None:
+            show_rollout(args, out_dir, robot, viewer)
+    return exit_code(summary)
 
+
+def show_rollout(args: argparse.Namespace, out_dir: Path, robot, viewer) -> None:
+    """After a run: ``--html``'s rollout.html, and the live viewer (``--view``) replaying what
+    the first seed learned until ``--view-timeout``; a seed with no motion to show says so."""
+    from feltool.cli.view import keep_viewing
+    from feltool.viewer.legged import NoFrames, replay_legged, write_legged_html
+
+    try:
+        if args.html:
             print(f"  rollout: {write_legged_html(out_dir, robot())}")
         if viewer is not None:  # the page stays up after the run: replay what it learned
-            from feltool.viewer.legged import replay_legged
-
             keep_viewing(viewer, lambda left: replay_legged(viewer, out_dir, timeout_s=left),
                          args.view_timeout)
-    return exit_code(summary)
+    except NoFrames as exc:
+        print(f"  rollout: not shown ({exc})")
 
 
 def resume_legged_command(args: argparse.Namespace, out_dir: Path) -> int | None:

@@ -54,6 +54,15 @@ def visual_robot(robot: str, urdf: Path | None):
     return SimpleNamespace(model=model, visual_model=visual, name=Path(urdf).stem)
 
 
+class NoFrames(InputError):
+    """A seed's rollout has no recorded configuration to show."""
+
+
+def _reason(summary: dict, seed: int) -> str:
+    entry = next(s for s in summary["seeds"] if s["seed"] == seed)
+    return entry.get("not_walking") or "no reason recorded"
+
+
 def legged_clips(run_dir: Path, seed: int | None = None
                  ) -> tuple[int, float, dict[str, np.ndarray], str]:
     """``(seed, dt [s], {clip name: q (n, nq)}, title)`` of a legged run directory's ``seed``
@@ -83,6 +92,9 @@ def legged_clips(run_dir: Path, seed: int | None = None
             if np.any(keep):
                 clips[name] = q[keep]
     if not clips:  # a seed that stopped before its first cycle: the whole rollout
+        if not len(q):
+            raise NoFrames(f"{run_dir}: seed {seed} stopped in its first control step "
+                           f"({_reason(summary, seed)}): no motion to show")
         clips["rollout"] = q
     return seed, dt, clips, f"{summary.get('config', run_dir.name)}, seed {seed}"
 

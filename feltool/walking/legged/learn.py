@@ -332,5 +332,6 @@ def learn_trot(legged: LeggedModel, cycles: int = 150, payload: float = 0.2, cha
                            **common)
     fb = summed_feedback(np.array(ctl.share_rms).reshape(-1, legged.nv - 6))
     half = len(log.t) // 2
-    speed = float((log.q[-1, 0] - log.q[half, 0]) / max(log.t[-1] - log.t[half], 1e-300))
+    speed = float((log.q[-1, 0] - log.q[half, 0]) / max(log.t[-1] - log.t[half], 1e-300)) \
+        if len(log.t) > 1 else 0.0  # a rollout that stopped at its first control step
     return TrotLearning(fb, ctl, log, log.kind, speed)
