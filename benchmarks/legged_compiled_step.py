@@ -67,6 +67,12 @@ def substep(legged) -> ca.Function:
         f = -ca.solve(ca.mtimes(J, MJ), ca.mtimes(J, free) + drift, "ldl")
         return free + ca.mtimes(MJ, f), f
 
+    return ca.Function("substep", [q, v, tau, h], rk4_step(dynamics, integrate, q, v, h))
+
+
+def rk4_step(dynamics, integrate, q, v, h) -> list:
+    """Classical Runge-Kutta over ``h`` on ``dynamics(q, v) -> (a, f)``: ``[q', v', f at the
+    start]`` (the configuration moved by ``integrate``, as the Python loop's rk4)."""
     a1, f1 = dynamics(q, v)
     v2, q2 = v + 0.5 * h * a1, integrate(q, 0.5 * h * v)
     a2, _ = dynamics(q2, v2)
@@ -74,9 +80,8 @@ def substep(legged) -> ca.Function:
     a3, _ = dynamics(q3, v3)
     v4, q4 = v + h * a3, integrate(q, h * v3)
     a4, _ = dynamics(q4, v4)
-    return ca.Function("substep", [q, v, tau, h],
-                       [integrate(q, h / 6 * (v + 2 * v2 + 2 * v3 + v4)),
-                        v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4), f1])
+    return [integrate(q, h / 6 * (v + 2 * v2 + 2 * v3 + v4)),
+            v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4), f1]
 
 
 def substep_sx(legged, h: float) -> ca.Function:
@@ -92,16 +97,7 @@ def substep_sx(legged, h: float) -> ca.Function:
         x = ca.solve(ca.blockcat([[M, -J.T], [J, ca.SX.zeros(n, n)]]), ca.vertcat(tau - b, -drift))
         return x[:m.nv], x[m.nv:]
 
-    a1, f1 = dynamics(q, v)
-    v2, q2 = v + 0.5 * h * a1, integrate(q, 0.5 * h * v)
-    a2, _ = dynamics(q2, v2)
-    v3, q3 = v + 0.5 * h * a2, integrate(q, 0.5 * h * v2)
-    a3, _ = dynamics(q3, v3)
-    v4, q4 = v + h * a3, integrate(q, h * v3)
-    a4, _ = dynamics(q4, v4)
-    return ca.Function("substep_sx", [q, v, tau],
-                       [integrate(q, h / 6 * (v + 2 * v2 + 2 * v3 + v4)),
-                        v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4), f1])
+    return ca.Function("substep_sx", [q, v, tau], rk4_step(dynamics, integrate, q, v, h))
 
 
 def per_call(fn, calls: int) -> float:

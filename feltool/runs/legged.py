@@ -21,7 +21,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import datetime as _dt
 import sys
 import time
@@ -31,16 +30,11 @@ from typing import Any, TextIO
 import numpy as np
 
 from feltool._version import __version__
-from feltool.bounds import MAX_RATE_HZ
-from feltool.config.legged import (
-    LeggedExperimentConfig,
-    LeggedGainsConfig,
-    TrotGaitConfig,
-    legged_config_yaml,
-)
-from feltool.errors import ConfigError, InputError, RobotError
+from feltool.config.legged import LeggedExperimentConfig, legged_config_yaml
+from feltool.errors import InputError
 from feltool.files import WriteError, make_dirs
 from feltool.runs.checkpoint import Interrupted
+from feltool.runs.legged_robot import as_run, gait_and_controller, load_legged_robot
 from feltool.runs.rundir import atomic_write, read_json, save_npz, write_by, write_json, write_metrics
 from feltool.runs.runstate import (
     NOTHING_WRITTEN,
@@ -70,112 +64,6 @@ def trace(t: np.ndarray, q: np.ndarray, rate_hz: float = TRACE_HZ) -> dict[str, 
     return {"t": grid, "q": q[idx]}
 
 
-def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
-                      source: str | None = None):
-    """The config's robot as a :class:`~feltool.walking.legged.model.LeggedModel` (``base_dir``:
-    the config's directory, for a relative URDF path). Raises :class:`ConfigError` (of the
-    config file ``source``) naming ``robot`` (a missing or unreadable URDF) or
-    ``walking.feet.<foot>`` (no such frame or link)."""
-    from feltool.walking.legged.model import (
-        SOLO12_FEET,
-        TALOS_FEET,
-        legged_model,
-        load_legged_urdf,
-        with_posture,
-    )
-
-    feet = {name: foot.model_dump(exclude_none=True) for name, foot in
-            (cfg.walking.feet or {}).items()}
-    for spec in feet.values():
-        if "link" in spec:
-            spec["offset"] = list(spec["offset"])
-        else:
-            spec.pop("offset", None)
-    path = cfg.urdf_path(base_dir)
-    try:
-        if path is None:
-            from example_robot_data.robots_loader import load_full
-
-            name = cfg.robot.split(":")[-1]
-            try:
-                robot, q0, _, srdf = load_full(name)
-            except ValueError:
-                raise ConfigError([("robot", f"example-robot-data has no robot '{name}' (its "
-                                             "quadrupeds: a1, anymal, anymal_c, b1, go1, go2, "
-                                             "hyq, solo12)")]) from None
-            m = robot.model
-            floating = m.njoints > 1 and m.joints[1].shortname() == "JointModelFreeFlyer"
-            feet = feet or {"solo12": SOLO12_FEET, "talos_legs": TALOS_FEET}.get(name) or \
-                (srdf_feet(name, srdf) if floating else {})  # else refused for its base
-            legged = legged_model(m, feet, q0=np.array(q0), effort=cfg.effort, name=name)
-        elif not path.is_file():
-            raise ConfigError([("robot", f"{path}: no such URDF file")])
-        else:
-            legged = load_legged_urdf(path, feet, effort=cfg.effort)
-        legged = with_posture(legged, cfg.walking.posture or {})
-        check_joint_gains(cfg, legged)
-        return legged
-    except RobotError as exc:
-        raise ConfigError([("robot", str(exc))], source) from None
-    except ConfigError as exc:
-        raise ConfigError(exc.problems, source) from None
-
-
-#: An SRDF end effector's name prefix -> the trot's foot (example-robot-data's quadrupeds:
-#: lf_foot, rf_foot, lh_foot, rh_foot)
-SRDF_FEET = {"lf": "FL", "rf": "FR", "lh": "HL", "rh": "HR"}
-
-
-def srdf_feet(name: str, srdf: str | None) -> dict[str, dict]:
-    """The trot's feet of example-robot-data's robot ``name`` from its SRDF's end effectors
-    named ``lf_*``, ``rf_*``, ``lh_*``, ``rh_*`` (each its parent link's frame); a
-    :class:`ConfigError` naming ``walking.feet`` when it has not all four."""
-    import xml.etree.ElementTree as ET
-
-    feet = {}
-    try:
-        root = ET.parse(srdf).getroot() if srdf else None
-    except (OSError, ET.ParseError):
-        root = None
-    for effector in ([] if root is None else root.iter("end_effector")):
-        foot = SRDF_FEET.get(str(effector.get("name", "")).lower()[:2])
-        if foot and effector.get("parent_link"):
-            feet.setdefault(foot, {"frame": effector.get("parent_link")})
-    if len(feet) < 4:
-        raise ConfigError([("walking.feet", f"required: example-robot-data's {name} names no "
-                                            "feet lf_*, rf_*, lh_*, rh_* among its SRDF's end "
-                                            "effectors; give FL, FR, HL, HR")])
-    return {f: feet[f] for f in ("FL", "FR", "HL", "HR")}
-
-
-def check_joint_gains(cfg: LeggedExperimentConfig, legged) -> None:
-    """Refuse joint gains whose loop around a joint alone diverges at the control rate
-    (:func:`~feltool.walking.legged.control.joint_loop_radius`, in the reference posture): a
-    :class:`ConfigError` naming ``walking.gains.joints``, the joint and what would do."""
-    from feltool.walking.legged.control import joint_loop_radius
-
-    joints = gait_and_controller(cfg, legged)[1]["gains"].joints
-    rate = cfg.sim.rate_hz
-    radius = joint_loop_radius(legged, legged.standing(), joints, rate)
-    if radius.max() < 1.0:
-        return
-    i = int(radius.argmax())
-    bad = [legged.motors[j] for j in np.flatnonzero(radius >= 1.0)]
-    # the damping that keeps that joint's loop inside the unit circle at this rate (b < 2,
-    # with the stiffness's share) and the rate at which the gains would be stable for it
-    ok_rate = rate
-    while joint_loop_radius(legged, legged.standing(), joints, ok_rate)[i] >= 1.0 \
-            and ok_rate < 1e7:
-        ok_rate *= 1.25
-    others = f" ({len(bad) - 1} other joints too)" if len(bad) > 1 else ""
-    raise ConfigError([("walking.gains.joints", (
-        f"[{joints[0]:.4g}, {joints[1]:.4g}] make {legged.motors[i]}'s own loop diverge"
-        f"{others}: fed back every 1/sim.rate_hz = {1e3 / rate:.3g} ms on the joint's inertia "
-        f"(the other joints free), its error grows {radius[i]:.3g} times per control step; "
-        f"lower the joints' gains or raise sim.rate_hz (these gains need {ok_rate:.3g} Hz "
-        f"for it, at most {MAX_RATE_HZ:g})"))])
-
-
 def world(cfg: LeggedExperimentConfig, legged) -> str:
     """The unknown world in words: ``payload 20% of 2.5 kg``, ``slope 0.1 rad uphill ahead``,
     ``masses 1.2 times the model's``, together, or ``no change of the world``."""
@@ -203,62 +91,6 @@ def describe(cfg: LeggedExperimentConfig, legged) -> str:
             f"{g.speed:.3g} m/s, period {g.period:.3g} s, plant {cfg.plant.simulator}, {load}, "
             f"learning {'on' if cfg.learning.enabled else 'off'}, {len(cfg.seed_list)} seeds x "
             f"{cfg.sim.cycles} cycles")
-
-
-def gait_and_controller(cfg: LeggedExperimentConfig, legged):
-    """The config's gait (the trot, or a biped's walk) and the controller's other arguments:
-    the gains ``walking.gains`` gives, the others the robot's defaults (a trot's Solo-12's
-    scaled to the robot, :mod:`~feltool.walking.legged.similar`, with the timing the config
-    leaves out; a walk's :func:`~feltool.walking.legged.walk.biped_gains`)."""
-    from feltool.walking.legged.similar import trot_gains, trot_timing
-    from feltool.walking.legged.trot import TrotGait
-    from feltool.walking.legged.walk import biped_gains, biped_walk
-
-    walk = cfg.walking.walk
-    if walk is None:
-        gait = cfg.walking.gait
-        given = gait.model_dump(include=gait.model_fields_set)
-        gait = TrotGait(**{**trot_timing(legged, gait.model_dump()), **given})
-        extra = trot_gains(legged)
-    else:
-        timing = walk.model_dump(exclude={"left", "right"})
-        gait = biped_walk(legged, legged.standing(), tuple(walk.left), tuple(walk.right),
-                          **timing)
-        extra = biped_gains(legged)
-    return gait, _with_gains(extra, cfg.walking.gains)
-
-
-#: ``walking.gains``' fields that are :class:`~feltool.walking.legged.control.StandGains`'
-BASE_GAINS = ("height", "tilt", "yaw_rate", "joints")
-
-
-def _with_gains(extra: dict, gains) -> dict:
-    """The controller's arguments ``extra`` with the gains the config gives."""
-    given = gains.model_dump(exclude_none=True)
-    out = dict(extra)
-    out["gains"] = dataclasses.replace(extra["gains"], **{k: v for k, v in given.items()
-                                                          if k in BASE_GAINS})
-    for key, name in (("horizontal", "horizontal"), ("swing", "swing_gains"),
-                      ("normal_force_min", "normal_force_min")):
-        if key in given:
-            out[name] = given[key]
-    return out
-
-
-def as_run(cfg: LeggedExperimentConfig, legged) -> LeggedExperimentConfig:
-    """``cfg`` with the gains and the trot's timing the robot runs with
-    (:func:`gait_and_controller`: the robot's defaults where the config leaves them out), as
-    ``config.yaml`` records it."""
-    gait, extra = gait_and_controller(cfg, legged)
-    g = extra["gains"]
-    gains = LeggedGainsConfig(**{k: getattr(g, k) for k in BASE_GAINS},
-                              horizontal=extra["horizontal"], swing=extra["swing_gains"],
-                              normal_force_min=extra["normal_force_min"])
-    walking = {"gains": gains}
-    if cfg.walking.walk is None:
-        walking["gait"] = TrotGaitConfig(**{k: float(getattr(gait, k))
-                                            for k in TrotGaitConfig.model_fields})
-    return cfg.model_copy(update={"walking": cfg.walking.model_copy(update=walking)})
 
 
 def acquire_reference(cfg: LeggedExperimentConfig, legged):
