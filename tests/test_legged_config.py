@@ -198,9 +198,7 @@ def test_a_quadruped_urdf_of_ones_own_runs_on_mujoco_as_itself(tmp_path, capsys)
     this robot (MuJoCo's model built from it, not example-robot-data's Solo-12, whose joints it
     would not find)."""
     feet = {f: {"frame": f"{f}_FOOT"} for f in ("FL", "FR", "HL", "HR")}
-    posture = {f"my_{leg}_{j}": a for leg, side, end in (("FL", 1, 1), ("FR", -1, 1),
-                                                        ("HL", 1, -1), ("HR", -1, -1))
-               for j, a in (("HAA", 0.1 * side), ("HFE", 0.8 * end), ("KFE", -1.6 * end))}
+    posture = solo_posture("my_")
     path = _config(tmp_path, shipped=CONFIGS / "legged" / "solo12_trot_mujoco.yaml",
                    robot=str(edited_solo_urdf(tmp_path)), walking__feet=feet, effort=2.7,
                    walking__acquire=0, walking__posture=posture)
@@ -227,28 +225,39 @@ def test_a_seed_that_stops_before_its_first_cycle_exits_1_with_its_figure(tmp_pa
     assert (out / "figures" / "legged_feedback.png").stat().st_size > 5_000
 
 
-def test_a_seed_that_stops_in_its_first_control_step_exits_1_and_says_why(tmp_path, capsys):
-    """Solo-8 from example-robot-data (two motors a leg, no abduction): its four feet's
-    contacts are dependent (their Jacobian's rank 10 of 12: no leg moves its foot sideways),
-    so the rigid plant has no contact forces at the first control step. The run says why,
-    exits 1 with its files and figure, --html says there is no motion to show (before, a
-    traceback: the rollout's speed was taken of no recorded state), and so does `feltool
-    view` (exit 2)."""
+def test_a_seed_that_records_no_state_is_reported_and_shows_no_motion(tmp_path, capsys):
+    """A trot whose start velocity (1000 times the usual draws) pulls a foot in the first
+    control step: learn_trot reports it (before: a traceback, the speed taken of no recorded
+    state). A run directory whose seed recorded no configuration, as such a seed's is:
+    --html and `feltool view` say there is no motion to show (before: "clip 'rollout' has no
+    frames"), exit 2, one line."""
+    from feltool.runs.legged import trace
+    from feltool.runs.rundir import save_npz
+    from feltool.walking.legged.learn import learn_trot
+    from feltool.walking.legged.model import load_solo12
+
+    run = learn_trot(load_solo12(effort=2.7), cycles=1, payload=0.0, acquire=0,
+                     start_speed=1000.0)
+    assert len(run.log.t) == 0 and len(run.feedback) == 0 and run.speed == 0.0
+    assert run.kind == "normal_force" and "would pull" in run.log.not_walking
     out = tmp_path / "run"
-    path = _config(tmp_path, robot="example-robot-data:solo8", walking__feet=None,
-                   walking__acquire=0, payload=None, success=None)
-    assert main(["run", str(path), "--seeds", "0", "--cycles", "2", "--out", str(out),
-                 "--no-progress", "--html"]) == 1
-    printed = capsys.readouterr()
-    assert "Traceback" not in printed.err, printed.err
-    assert "rollout: not shown" in printed.out and "no motion to show" in printed.out
-    entry = json.loads((out / "summary.json").read_text())["seeds"][0]
-    assert entry["cycles"] == 0 and entry["kind"] == "diverged"
-    assert "no finite contact forces" in entry["not_walking"]
-    assert (out / "figures" / "legged_feedback.png").is_file()
+    path = _config(tmp_path, walking__acquire=0)
+    assert main(["run", str(path), "--seeds", "0", "--cycles", "1", "--out", str(out),
+                 "--no-progress"]) in (0, 1)
+    save_npz(out / "traces" / "seed-0.npz",
+             {**trace(run.log.t, run.log.q), "cycle_times": np.zeros((0, 2))})
+    capsys.readouterr()
     assert main(["view", str(out), "--html"]) == 2
     err = capsys.readouterr().err
-    assert "seed 0 stopped in its first control step" in err and err.count("\n") == 1
+    assert "seed 0 stopped in its first control step" in err and "no motion to show" in err
+    assert err.count("\n") == 1
+
+
+def solo_posture(prefix: str = "") -> dict[str, float]:
+    """Solo-12's reference posture [rad] by its joints' names (``prefix`` before each)."""
+    return {f"{prefix}{leg}_{j}": a for leg, side, end in (("FL", 1, 1), ("FR", -1, 1),
+                                                          ("HL", 1, -1), ("HR", -1, -1))
+            for j, a in (("HAA", 0.1 * side), ("HFE", 0.8 * end), ("KFE", -1.6 * end))}
 
 
 def _solo_urdf() -> str:
@@ -267,6 +276,11 @@ BAD = [
      "walking.feet: required: example-robot-data's talos names no feet lf_*, rf_*, lh_*, rh_*"),
     ({"robot": "example-robot-data:ur5", "walking__feet": None},
      "robot: ur5: a legged robot's first joint must be a free flyer"),
+    ({"robot": "example-robot-data:solo8", "walking__feet": None},
+     "walking.feet: the gait places each foot in 3D, which takes a leg of at least three "
+     "joints: FL's has 2"),
+    ({"robot": "{urdf}"}, "walking.posture: in the reference posture (none given: the "
+                          "model's, a URDF's zeros) the legs of FL, FR, HL, HR cannot move"),
     ({"robot": "example-robot-data:go1", "walking__feet": {
         "FL": {"frame": "FL_FOOT"}, "FR": {"frame": "FR_foot"}, "HL": {"frame": "RL_foot"},
         "HR": {"frame": "RR_foot"}}}, "walking.feet.FL: no frame 'FL_FOOT' in go1"),
@@ -320,10 +334,12 @@ def test_a_bad_field_exits_2_naming_it(tmp_path, capsys, changes, message):
 
 
 def test_a_urdf_robot_with_link_and_offset_feet_checks(tmp_path, capsys):
-    """Any URDF on a free flyer: Solo-12's own file with its feet as the lower legs' points."""
+    """Any URDF on a free flyer: Solo-12's own file with its feet as the lower legs' points,
+    its posture from the config (at the URDF's zeros its legs are straight: refused, BAD)."""
     feet = {f: {"link": f"{f}_LOWER_LEG", "offset": [0.0, 0.0, -0.16]}
             for f in ("FL", "FR", "HL", "HR")}
-    path = _config(tmp_path, robot=_solo_urdf(), walking__feet=feet)
+    path = _config(tmp_path, robot=_solo_urdf(), walking__feet=feet,
+                   walking__posture=solo_posture())
     assert main(["check", str(path)]) == 0
     assert "feet FL, FR, HL, HR" in capsys.readouterr().out
 

@@ -58,6 +58,7 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
         else:
             legged = load_legged_urdf(path, feet, effort=cfg.effort)
         legged = with_posture(legged, cfg.walking.posture or {})
+        check_legs_bent(cfg, legged)
         check_joint_gains(cfg, legged)
         return legged
     except RobotError as exc:
@@ -91,6 +92,38 @@ def srdf_feet(name: str, srdf: str | None) -> dict[str, dict]:
                                             "feet lf_*, rf_*, lh_*, rh_* among its SRDF's end "
                                             "effectors; give FL, FR, HL, HR")])
     return {f: feet[f] for f in ("FL", "FR", "HL", "HR")}
+
+
+#: A leg whose foot's Jacobian (on the leg's joints) has its smallest singular value below
+#: this fraction of its largest is singular: straight, or folded onto itself
+SINGULAR_LEG = 1e-6
+
+
+def check_legs_bent(cfg: LeggedExperimentConfig, legged) -> None:
+    """Refuse legs of fewer than three joints (naming ``walking.feet``) and a reference
+    posture in which a foot cannot move along every direction by its leg's joints (naming
+    ``walking.posture`` and the feet): a straight leg, as a URDF's zero posture mostly is, on
+    which the gait's inverse kinematics and the contact forces are singular."""
+    from feltool.walking.legged.contact import LeggedContact
+
+    short = {f: len(legged.leg(f)) for f in legged.feet if len(legged.leg(f)) < 3}
+    if short:
+        raise ConfigError([("walking.feet", "the gait places each foot in 3D, which takes a "
+                            "leg of at least three joints: " + ", ".join(
+                                f"{f}'s has {n}" for f, n in short.items()))])
+    q = legged.standing()
+    J = LeggedContact(legged).jacobian(q, tuple(legged.feet))
+    straight = []
+    for i, foot in enumerate(legged.feet):
+        s = np.linalg.svd(J[3 * i:3 * i + 3, legged.leg(foot)], compute_uv=False)
+        if s[-1] < SINGULAR_LEG * s[0]:
+            straight.append(foot)
+    if straight:
+        given = "" if cfg.walking.posture else " (none given: the model's, a URDF's zeros)"
+        raise ConfigError([("walking.posture", (
+            f"in the reference posture{given} the legs of {', '.join(straight)} cannot move "
+            "their feet in every direction (straight: singular): give a posture with the "
+            "knees bent, motor joint by motor joint"))])
 
 
 def check_joint_gains(cfg: LeggedExperimentConfig, legged) -> None:
