@@ -1,7 +1,7 @@
 """A legged config's robot and controller: the robot loaded (a named one, one of
 example-robot-data, a URDF; its feet and posture), the gait and the gains it runs with (the
-config's, else the robot's defaults), and the gains refused before a run when a joint's own
-loop would diverge."""
+config's, else the robot's defaults); refused before a run: a straight leg in the reference
+posture, a leg of fewer than three joints, gains under which a joint's own loop diverges."""
 
 from __future__ import annotations
 
@@ -19,8 +19,9 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
                       source: str | None = None):
     """The config's robot as a :class:`~feltool.walking.legged.model.LeggedModel` (``base_dir``:
     the config's directory, for a relative URDF path). Raises :class:`ConfigError` (of the
-    config file ``source``) naming ``robot`` (a missing or unreadable URDF) or
-    ``walking.feet.<foot>`` (no such frame or link)."""
+    config file ``source``) naming ``robot`` (a missing or unreadable URDF),
+    ``walking.feet.<foot>`` (no such frame or link), ``walking.feet`` / ``walking.posture``
+    (:func:`check_legs_bent`) or ``walking.gains.joints`` (:func:`check_joint_gains`)."""
     from feltool.walking.legged.model import (
         SOLO12_FEET,
         TALOS_FEET,
