@@ -134,17 +134,14 @@ def check_joint_gains(cfg: LeggedExperimentConfig, legged) -> None:
     from feltool.walking.legged.control import joint_loop_radius
 
     joints = gait_and_controller(cfg, legged)[1]["gains"].joints
-    rate = cfg.sim.rate_hz
-    radius = joint_loop_radius(legged, legged.standing(), joints, rate)
+    rate, q = cfg.sim.rate_hz, legged.standing()
+    radius = joint_loop_radius(legged, q, joints, rate)
     if radius.max() < 1.0:
         return
     i = int(radius.argmax())
     bad = [legged.motors[j] for j in np.flatnonzero(radius >= 1.0)]
-    # the damping that keeps that joint's loop inside the unit circle at this rate (b < 2,
-    # with the stiffness's share) and the rate at which the gains would be stable for it
-    ok_rate = rate
-    while joint_loop_radius(legged, legged.standing(), joints, ok_rate)[i] >= 1.0 \
-            and ok_rate < 1e7:
+    ok_rate = rate  # the rate at which these gains keep the worst joint's loop inside
+    while joint_loop_radius(legged, q, joints, ok_rate)[i] >= 1.0 and ok_rate < 1e7:
         ok_rate *= 1.25
     others = f" ({len(bad) - 1} other joints too)" if len(bad) > 1 else ""
     raise ConfigError([("walking.gains.joints", (

@@ -53,14 +53,15 @@ def check_stance(chk: ContactChecks, st: LeggedStats, feet: tuple[str, ...],
                  forces: np.ndarray) -> None:
     """The stance feet's ground forces ``(n, 3)`` [N]: pushing, and inside the friction cone."""
     floor = max(0.0, chk.normal_force_min)
-    if not np.all(np.isfinite(forces)):  # a singular contact problem, or a diverged state
-        raise NotWalking(f"the stance feet {', '.join(feet)} have no finite contact forces: "
-                         "their contacts' constraints are dependent (more than the robot's "
-                         "legs can resolve) or the state diverged", "diverged")
     for foot, f in zip(feet, forces):
         fn, ft = float(f[2]), float(np.hypot(f[0], f[1]))
         st.min_normal_force = min(st.min_normal_force, fn)
         if not fn > floor:
+            if not np.all(np.isfinite(forces)):  # a singular contact problem, or diverged
+                raise NotWalking(f"the stance feet {', '.join(feet)} have no finite contact "
+                                 "forces: their contacts' constraints are dependent (more "
+                                 "than the robot's legs can resolve) or the state diverged",
+                                 "diverged")
             raise NotWalking(f"the stance foot {foot} would pull on the ground: normal force "
                              f"{fn:.4g} N (walking.normal_force_min = {chk.normal_force_min} N)",
                              "normal_force")
