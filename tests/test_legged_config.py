@@ -194,13 +194,12 @@ def test_a_missed_success_bound_exits_1_and_keeps_the_results(tmp_path, capsys):
 
 def test_a_quadruped_urdf_of_ones_own_runs_on_mujoco_as_itself(tmp_path, capsys):
     """Solo-12's URDF with every joint renamed, as a config's robot on MuJoCo's plant, its
-    reference posture (example-robot-data's, knees bent) from ``walking.posture``: the run trots
-    this robot (MuJoCo's model built from it, not example-robot-data's Solo-12, whose joints it
-    would not find)."""
-    feet = {f: {"frame": f"{f}_FOOT"} for f in ("FL", "FR", "HL", "HR")}
+    reference posture (example-robot-data's, knees bent) from ``walking.posture``, its feet not
+    named (found from its tree): the run trots this robot (MuJoCo's model built from it, not
+    example-robot-data's Solo-12, whose joints it would not find)."""
     posture = solo_posture("my_")
     path = _config(tmp_path, shipped=CONFIGS / "legged" / "solo12_trot_mujoco.yaml",
-                   robot=str(edited_solo_urdf(tmp_path)), walking__feet=feet, effort=2.7,
+                   robot=str(edited_solo_urdf(tmp_path)), walking__feet=None, effort=2.7,
                    walking__acquire=0, walking__posture=posture)
     out = tmp_path / "run"
     code = main(["run", str(path), "--seeds", "0", "--cycles", "3", "--out", str(out),
@@ -266,6 +265,12 @@ def _solo_urdf() -> str:
     return str(erd.load("solo12").urdf)
 
 
+def _bolt_urdf() -> str:  # a biped as published: two legs of three joints
+    import example_robot_data as erd
+
+    return str(erd.load("bolt").urdf)
+
+
 SOLO_FEET = {f: {"frame": f"{f}_FOOT"} for f in ("FL", "FR", "HL", "HR")}
 BAD = [
     ({"robot": "example-robot-data:nonsense", "walking__feet": SOLO_FEET},
@@ -273,7 +278,12 @@ BAD = [
     ({"robot": "example-robot-data:ur5", "walking__feet": SOLO_FEET},
      "robot: ur5: a legged robot's first joint must be a free flyer"),
     ({"robot": "example-robot-data:talos", "walking__feet": None},
-     "walking.feet: required: example-robot-data's talos names no feet lf_*, rf_*, lh_*, rh_*"),
+     "walking.feet: required: talos names no feet (walking.feet, SRDF end effectors lf_*, "
+     "rf_*, lh_*, rh_*) and its tree ends in 2 at the bottom of legs of three or more joints"),
+    ({"robot": "example-robot-data:cassie", "walking__feet": SOLO_FEET},
+     "robot: example-robot-data's cassie failed to load"),
+    ({"robot": "{bolt}", "walking__feet": None},
+     "walking.feet: required: bolt names no feet (walking.feet, SRDF end effectors"),
     ({"robot": "example-robot-data:ur5", "walking__feet": None},
      "robot: ur5: a legged robot's first joint must be a free flyer"),
     ({"robot": "example-robot-data:solo8", "walking__feet": None},
@@ -294,7 +304,8 @@ BAD = [
     ({"robot": "missing.urdf"}, "robot: "),
     ({"robot": "anymal"}, "robot: 'anymal' is neither solo12, talos_legs, "
                          "example-robot-data:NAME nor a URDF"),
-    ({"robot": "{urdf}", "walking__feet": None}, "walking.feet: required for a URDF robot"),
+    ({"robot": "{urdf}", "walking__feet": None},  # its feet found, its zeros straight
+     "walking.posture: in the reference posture (none given: the model's, a URDF's zeros)"),
     ({"effort": -1}, "effort:"),
     ({"walking__posture": {"FL_KNEE": -1.6}}, "walking.posture.FL_KNEE: no motor joint 'FL_KNEE'"),
     ({"walking__posture": {"root_joint": 0.0}}, "walking.posture.root_joint: no motor joint"),
@@ -322,7 +333,9 @@ BAD = [
 
 @pytest.mark.parametrize("changes, message", BAD, ids=[m.split(":")[0] for _, m in BAD])
 def test_a_bad_field_exits_2_naming_it(tmp_path, capsys, changes, message):
-    changes = {k: (_solo_urdf() if v == "{urdf}" else v) for k, v in changes.items()}
+    urdfs = {"{urdf}": _solo_urdf, "{bolt}": _bolt_urdf}
+    changes = {k: urdfs[v]() if isinstance(v, str) and v in urdfs else v
+               for k, v in changes.items()}
     path = _config(tmp_path, **changes)
     assert main(["check", str(path)]) == 2
     err = capsys.readouterr().err

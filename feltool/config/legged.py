@@ -130,9 +130,12 @@ class LeggedWalkingConfig(Strict):
         "flyer (x, y, z, orientation), a 3D legged experiment (this schema).")
     feet: dict[str, FootConfig] | None = Field(None, description="The point feet FL, FR, HL, "
         "HR (all four, no others), each a URDF frame ({frame: NAME}) or a link and an offset "
-        "in its frame ({link: NAME, offset: [x, y, z]} in [m]); required for a URDF robot, "
-        "default for solo12 its FL_FOOT, FR_FOOT, HL_FOOT, HR_FOOT frames, for another "
-        "example-robot-data:NAME the end effectors lf_*, rf_*, lh_*, rh_* of its SRDF.")
+        "in its frame ({link: NAME, offset: [x, y, z]} in [m]); default for solo12 its "
+        "FL_FOOT, FR_FOOT, HL_FOOT, HR_FOOT frames, for another example-robot-data:NAME the "
+        "end effectors lf_*, rf_*, lh_*, rh_* of its SRDF; without those (a URDF) the four ends "
+        "of legs of three or more joints at the bottom of the robot in its reference posture "
+        "(each the frame on the leg's last body farthest from its joint), named by where they "
+        "are on the base (larger x front, larger y left).")
     posture: dict[str, Annotated[FiniteFloat, Field(ge=-100.0, le=100.0)]] | None = Field(
         None, description="The robot's reference posture: motor joint name -> its angle in "
         "[rad] (a prismatic joint's position in [m]); the joints not named keep the model's "
@@ -252,8 +255,8 @@ class LeggedExperimentConfig(Strict):
         "example-robot-data:solo12), talos_legs (Talos' legs and torso, a biped on two soles; "
         "walking.walk), example-robot-data:NAME (any robot of example-robot-data on its free "
         "flyer, e.g. go1, a1, anymal; its reference posture example-robot-data's, its feet its "
-        "SRDF's) or a URDF file's path (relative to the config file), put on a free flyer, "
-        "which needs walking.feet.")
+        "SRDF's) or a URDF file's path (relative to the config file), put on a free flyer "
+        "(its feet found, walking.feet).")
     effort: PositiveFloat | None = Field(None, le=1.0e4, description="Every motor's torque limit "
         "in [N m], replacing the URDF's (Solo-12's URDF says 1000; its actuator's peak is "
         "2.7); default the URDF's.")
@@ -311,9 +314,6 @@ class LeggedExperimentConfig(Strict):
             if missing:
                 out.append(("walking.feet", f"the trot needs all four feet "
                                             f"{', '.join(TROT_FEET)}; missing {', '.join(missing)}"))
-        if self.robot not in NAMED_ROBOTS and not self.robot.startswith(ERD) and feet is None:
-            out.append(("walking.feet", "required for a URDF robot: FL, FR, HL, HR, each "
-                                        "{frame: NAME} or {link: NAME, offset: [x, y, z]}"))
         out += self._world_problems()
         return out
 

@@ -27,8 +27,9 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
         TALOS_FEET,
         legged_model,
         load_legged_urdf,
-        with_posture,
+        posture_q,
     )
+    from feltool.walking.legged.tree_feet import quadruped_feet
 
     feet = {name: foot.model_dump(exclude_none=True) for name, foot in
             (cfg.walking.feet or {}).items()}
@@ -49,16 +50,21 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
                 raise ConfigError([("robot", f"example-robot-data has no robot '{name}' (its "
                                              "quadrupeds: a1, anymal, anymal_c, b1, go1, go2, "
                                              "hyq, solo12)")]) from None
+            except Exception as exc:  # its loader's own failure (cassie: an SDF model)
+                raise ConfigError([("robot", f"example-robot-data's {name} failed to load: "
+                                             f"{exc}")]) from None
             m = robot.model
             floating = m.njoints > 1 and m.joints[1].shortname() == "JointModelFreeFlyer"
-            feet = feet or {"solo12": SOLO12_FEET, "talos_legs": TALOS_FEET}.get(name) or \
-                (srdf_feet(name, srdf) if floating else {})  # else refused for its base
-            legged = legged_model(m, feet, q0=np.array(q0), effort=cfg.effort, name=name)
+            q0 = posture_q(m, np.array(q0), cfg.walking.posture or {}, name)
+            if floating and not feet:  # else refused for its base
+                feet = {"solo12": SOLO12_FEET, "talos_legs": TALOS_FEET}.get(name) or \
+                    srdf_feet(srdf) or quadruped_feet(m, q0, name)
+            legged = legged_model(m, feet, q0=q0, effort=cfg.effort, name=name)
         elif not path.is_file():
             raise ConfigError([("robot", f"{path}: no such URDF file")])
         else:
-            legged = load_legged_urdf(path, feet, effort=cfg.effort)
-        legged = with_posture(legged, cfg.walking.posture or {})
+            legged = load_legged_urdf(path, feet, effort=cfg.effort,
+                                      posture=cfg.walking.posture or {})
         check_legs_bent(cfg, legged)
         check_joint_gains(cfg, legged)
         return legged
@@ -73,10 +79,10 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
 SRDF_FEET = {"lf": "FL", "rf": "FR", "lh": "HL", "rh": "HR"}
 
 
-def srdf_feet(name: str, srdf: str | None) -> dict[str, dict]:
-    """The trot's feet of example-robot-data's robot ``name`` from its SRDF's end effectors
-    named ``lf_*``, ``rf_*``, ``lh_*``, ``rh_*`` (each its parent link's frame); a
-    :class:`ConfigError` naming ``walking.feet`` when it has not all four."""
+def srdf_feet(srdf: str | None) -> dict[str, dict] | None:
+    """The trot's feet of an example-robot-data robot from its SRDF file ``srdf``'s end
+    effectors named ``lf_*``, ``rf_*``, ``lh_*``, ``rh_*`` (each its parent link's frame); None
+    when it has not all four."""
     import xml.etree.ElementTree as ET
 
     feet = {}
@@ -89,9 +95,7 @@ def srdf_feet(name: str, srdf: str | None) -> dict[str, dict]:
         if foot and effector.get("parent_link"):
             feet.setdefault(foot, {"frame": effector.get("parent_link")})
     if len(feet) < 4:
-        raise ConfigError([("walking.feet", f"required: example-robot-data's {name} names no "
-                                            "feet lf_*, rf_*, lh_*, rh_* among its SRDF's end "
-                                            "effectors; give FL, FR, HL, HR")])
+        return None
     return {f: feet[f] for f in ("FL", "FR", "HL", "HR")}
 
 

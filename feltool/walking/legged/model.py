@@ -14,7 +14,7 @@ limit the URDF's effort limit unless :class:`LeggedModel` is given another.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +23,7 @@ import pinocchio as pin
 from feltool.errors import ConfigError, RobotError
 from feltool.robot.mujoco import MIN_INERTIA
 from feltool.robot.robot import check_model_dynamics
+from feltool.walking.legged.tree_feet import quadruped_feet
 
 #: The feet of Solo-12 in example-robot-data, by their frames
 SOLO12_FEET = {"FL": {"frame": "FL_FOOT"}, "FR": {"frame": "FR_FOOT"},
@@ -193,27 +194,31 @@ def legged_model(model: pin.Model, feet: dict[str, dict], q0: np.ndarray | None 
                        name=name)
 
 
-def with_posture(legged: LeggedModel, posture: dict[str, float]) -> LeggedModel:
-    """``legged`` with its reference configuration :attr:`LeggedModel.q0`'s motor joints set
-    from ``posture`` (joint name -> angle [rad] or position [m]). Raises
-    :class:`ConfigError` naming ``walking.posture.<name>`` for a name that is no motor joint
-    of one coordinate."""
-    m, q0, problems = legged.model, legged.q0.copy(), []
-    for name, value in posture.items():
-        j = m.getJointId(name) if m.existJointName(name) else m.njoints
-        if j < 2 or j >= m.njoints or m.joints[j].nq != 1:
-            problems.append((f"walking.posture.{name}", f"no motor joint '{name}' in "
-                             f"{legged.name} (its motors: {', '.join(legged.motors)})"))
+def posture_q(model: pin.Model, q0: np.ndarray, posture: dict[str, float], name: str
+              ) -> np.ndarray:
+    """``q0`` ``(nq,)`` with its motor joints set from ``posture`` (joint name -> angle [rad]
+    or position [m]). Raises :class:`ConfigError` naming ``walking.posture.<name>`` for a name
+    that is no motor joint of one coordinate of ``model`` (robot ``name``)."""
+    q0, problems = np.array(q0, float), []
+    for joint, value in posture.items():
+        j = model.getJointId(joint) if model.existJointName(joint) else model.njoints
+        if j < 2 or j >= model.njoints or model.joints[j].nq != 1:
+            problems.append((f"walking.posture.{joint}", f"no motor joint '{joint}' in "
+                             f"{name} (its motors: {', '.join(model.names[2:])})"))
             continue
-        q0[m.joints[j].idx_q] = float(value)
+        q0[model.joints[j].idx_q] = float(value)
     if problems:
         raise ConfigError(problems)
-    return replace(legged, q0=q0)
+    return q0
 
 
-def load_legged_urdf(path: str | Path, feet: dict[str, dict], effort=None) -> LeggedModel:
+def load_legged_urdf(path: str | Path, feet: dict[str, dict] | None = None, effort=None,
+                     posture: dict[str, float] | None = None) -> LeggedModel:
     """A legged robot from a URDF file, put on a free flyer (``JointModelFreeFlyer`` above its
-    root link). Raises :class:`RobotError` naming the file when it cannot be read."""
+    root link), in its zero posture (base 1 m up) with the motor joints of ``posture`` set
+    (:func:`posture_q`); ``feet`` as :func:`legged_model` takes them, None or empty: a
+    quadruped's four found from its tree (:func:`~.tree_feet.quadruped_feet`). Raises
+    :class:`RobotError` naming the file when it cannot be read."""
     path = Path(path)
     if not path.is_file():
         raise RobotError(f"{path}: no such URDF file")
@@ -222,7 +227,11 @@ def load_legged_urdf(path: str | Path, feet: dict[str, dict], effort=None) -> Le
     except Exception as exc:  # urdfdom's messages
         raise RobotError(f"{path}: not a readable URDF ({exc})") from None
     check_model_dynamics(model, str(path))
-    return legged_model(model, feet, effort=effort, name=path.stem)
+    q0 = pin.neutral(model)
+    q0[2] = 1.0
+    q0 = posture_q(model, q0, posture or {}, path.stem)
+    feet = feet or quadruped_feet(model, q0, path.stem)
+    return legged_model(model, feet, q0=q0, effort=effort, name=path.stem)
 
 
 def load_solo12(effort: float | None = None) -> LeggedModel:
