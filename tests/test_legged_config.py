@@ -311,6 +311,8 @@ BAD = [
     ({"walking__posture": {"root_joint": 0.0}}, "walking.posture.root_joint: no motor joint"),
     ({"walking__posture": {"FL_KFE": float("nan")}}, "walking.posture.FL_KFE:"),
     ({"walking__posture": {"FL_KFE": "bent"}}, "walking.posture.FL_KFE:"),
+    ({"walking__posture": {"FL_KFE": -3.1, "FR_KFE": -3.1, "HL_KFE": 3.1, "HR_KFE": 3.1}},
+     "walking.posture: in the reference posture the base's origin is"),  # knees folded up
     ({"payload__fraction": 0}, "payload.fraction:"),
     ({"payload__cycle": 0}, "payload.cycle:"),
     ({"payload": None}, "success.ratio_from: change needs a change of the world"),

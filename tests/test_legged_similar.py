@@ -277,3 +277,25 @@ def test_joint_gains_that_diverge_are_refused_naming_them_and_do_diverge(tmp_pat
             assert np.abs(run.log.u).max() == pytest.approx(2.7)
         else:
             assert flips < 0.1
+
+
+@pytest.mark.parametrize("joints", [[0.0, 0.0], [0.0, 0.1]])
+def test_joint_gains_without_stiffness_are_not_refused(tmp_path, capsys, joints):
+    """No stiffness: the loop's matrix is [[1, h(1 - b/2)], [0, 1 - b]] (closed form), an
+    eigenvalue 1 exactly: the joint's position is left to itself, not made to diverge, and the
+    config checks (the run shows what it does). Stiffness without damping is refused: the
+    held torque's lag makes the determinant 1 + a/2 > 1, radius sqrt(1 + a/2)."""
+    from feltool.walking.legged.control import joint_loop_radius
+
+    solo = load_solo12(effort=2.7)
+    radius = joint_loop_radius(solo, solo.standing(), tuple(joints), 1000.0)
+    assert np.allclose(radius, 1.0, rtol=0, atol=1e-12)
+    raw = yaml.safe_load((CONFIGS / "legged" / "solo12_trot.yaml").read_text())
+    raw["walking"]["gains"] = {"joints": joints}
+    path = tmp_path / "trot.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["check", str(path)]) == 0, capsys.readouterr().err
+    stiff = joint_loop_radius(solo, solo.standing(), (3.0, 0.0), 1000.0)
+    M = pin.crba(solo.model, solo.model.createData(), solo.standing())
+    inertia = 1.0 / np.diag(np.linalg.inv(np.triu(M) + np.triu(M, 1).T))[6:]
+    assert np.allclose(stiff, np.sqrt(1.0 + 3.0 * 1e-6 / inertia / 2), rtol=1e-9)

@@ -105,10 +105,11 @@ SINGULAR_LEG = 1e-6
 
 
 def check_legs_bent(cfg: LeggedExperimentConfig, legged) -> None:
-    """Refuse legs of fewer than three joints (naming ``walking.feet``) and a reference
-    posture in which a foot cannot move along every direction by its leg's joints (naming
-    ``walking.posture`` and the feet): a straight leg, as a URDF's zero posture mostly is, on
-    which the gait's inverse kinematics and the contact forces are singular."""
+    """Refuse legs of fewer than three joints (naming ``walking.feet``), and naming
+    ``walking.posture`` a reference posture with the base not above the feet or in which a
+    foot cannot move along every direction by its leg's joints (and the feet): a straight leg,
+    as a URDF's zero posture mostly is, on which the gait's inverse kinematics and the contact
+    forces are singular."""
     from feltool.walking.legged.contact import LeggedContact
 
     short = {f: len(legged.leg(f)) for f in legged.feet if len(legged.leg(f)) < 3}
@@ -117,6 +118,12 @@ def check_legs_bent(cfg: LeggedExperimentConfig, legged) -> None:
                             "leg of at least three joints: " + ", ".join(
                                 f"{f}'s has {n}" for f, n in short.items()))])
     q = legged.standing()
+    given = "" if cfg.walking.posture else " (none given: the model's, a URDF's zeros)"
+    height = float(q[2] - legged.foot_positions(q)[:, 2].mean())
+    if not height > 0.0:  # feet above the base: a leg folded up, or a posture of another robot
+        raise ConfigError([("walking.posture", (
+            f"in the reference posture{given} the base's origin is {-height:.3g} m below its "
+            "feet, not above them: give a posture that stands on them"))])
     J = LeggedContact(legged).jacobian(q, tuple(legged.feet))
     straight = []
     for i, foot in enumerate(legged.feet):
@@ -124,11 +131,15 @@ def check_legs_bent(cfg: LeggedExperimentConfig, legged) -> None:
         if s[-1] < SINGULAR_LEG * s[0]:
             straight.append(foot)
     if straight:
-        given = "" if cfg.walking.posture else " (none given: the model's, a URDF's zeros)"
         raise ConfigError([("walking.posture", (
             f"in the reference posture{given} the legs of {', '.join(straight)} cannot move "
             "their feet in every direction (straight: singular): give a posture with the "
             "knees bent, motor joint by motor joint"))])
+
+
+#: A joint's loop diverges when its spectral radius is above this [-] (gains of zero give 1:
+#: the joint left to itself, refused by no check here; the run shows what it does)
+DIVERGES = 1.0 + 1e-9
 
 
 def check_joint_gains(cfg: LeggedExperimentConfig, legged) -> None:
@@ -140,12 +151,12 @@ def check_joint_gains(cfg: LeggedExperimentConfig, legged) -> None:
     joints = gait_and_controller(cfg, legged)[1]["gains"].joints
     rate, q = cfg.sim.rate_hz, legged.standing()
     radius = joint_loop_radius(legged, q, joints, rate)
-    if radius.max() < 1.0:
+    if radius.max() <= DIVERGES:  # 1 exactly: no stiffness or no damping, not a divergence
         return
     i = int(radius.argmax())
-    bad = [legged.motors[j] for j in np.flatnonzero(radius >= 1.0)]
+    bad = [legged.motors[j] for j in np.flatnonzero(radius > DIVERGES)]
     ok_rate = rate  # the rate at which these gains keep the worst joint's loop inside
-    while joint_loop_radius(legged, q, joints, ok_rate)[i] >= 1.0 and ok_rate < 1e7:
+    while joint_loop_radius(legged, q, joints, ok_rate)[i] > DIVERGES and ok_rate < 1e7:
         ok_rate *= 1.25
     others = f" ({len(bad) - 1} other joints too)" if len(bad) > 1 else ""
     raise ConfigError([("walking.gains.joints", (
