@@ -210,6 +210,32 @@ def test_a_quadruped_urdf_of_ones_own_runs_on_mujoco_as_itself(tmp_path, capsys)
     assert summary["seeds"][0]["walked"] and summary["seeds"][0]["cycles"] == 3
 
 
+def test_the_motors_armature_from_the_config_reaches_the_model_and_mujocos_plant(tmp_path):
+    """``armature: 0.02``: the known model's joint-space inertia is Pinocchio's CRBA of the
+    robot without it plus 0.02 on each motor's diagonal (the base's rows untouched), and
+    MuJoCo's plant built from the model has it on every motor's dof (its accelerations are
+    checked against pin.aba in test_legged_mujoco)."""
+    import mujoco
+    import pinocchio as pin
+
+    from feltool.config.legged import parse_legged_config
+    from feltool.runs.legged_robot import load_legged_robot
+    from feltool.walking.legged.mujoco_plant import model_spec
+
+    raw = yaml.safe_load((CONFIGS / "legged" / "solo12_trot.yaml").read_text())
+    models = {}
+    for armature in (None, 0.02):
+        raw["armature"] = armature
+        models[armature] = load_legged_robot(parse_legged_config(raw))
+    q = models[None].standing()
+    M0, M1 = (pin.crba(m.model, m.model.createData(), q) for m in models.values())
+    add = np.r_[np.zeros(6), np.full(12, 0.02)]
+    assert np.allclose(np.triu(M1) - np.triu(M0), np.diag(add), rtol=0, atol=1e-13)
+    spec, _ = model_spec(mujoco, models[0.02])
+    mj = spec.compile()
+    assert np.allclose(mj.dof_armature, add, rtol=0, atol=0)
+
+
 def test_a_seed_that_stops_before_its_first_cycle_exits_1_with_its_figure(tmp_path, capsys):
     """Motors too weak to stand (0.5 N m): a foot slips before the first cycle; the run says
     why, exits 1, and draws its (empty) figure without a traceback."""
@@ -307,6 +333,8 @@ BAD = [
     ({"robot": "{urdf}", "walking__feet": None},  # its feet found, its zeros straight
      "walking.posture: in the reference posture (none given: the model's, a URDF's zeros)"),
     ({"effort": -1}, "effort:"),
+    ({"armature": -0.01}, "armature:"),
+    ({"armature": "heavy"}, "armature:"),
     ({"walking__posture": {"FL_KNEE": -1.6}}, "walking.posture.FL_KNEE: no motor joint 'FL_KNEE'"),
     ({"walking__posture": {"root_joint": 0.0}}, "walking.posture.root_joint: no motor joint"),
     ({"walking__posture": {"FL_KFE": float("nan")}}, "walking.posture.FL_KFE:"),

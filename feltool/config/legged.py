@@ -260,6 +260,12 @@ class LeggedExperimentConfig(Strict):
     effort: PositiveFloat | None = Field(None, le=1.0e4, description="Every motor's torque limit "
         "in [N m], replacing the URDF's (Solo-12's URDF says 1000; its actuator's peak is "
         "2.7); default the URDF's.")
+    armature: Annotated[float, Field(ge=0.0, le=100.0)] | None = Field(None, description=(
+        "Every motor's rotor inertia reflected through its gear, in [kg m^2] (a prismatic "
+        "motor's in [kg]), the model's armature: the known model's and the plant's alike; "
+        "default the model's (a URDF has none: 0; Talos' legs 0.1). A URDF as published mostly "
+        "leaves it out, and joints of light links then have an inertia too small for a joint "
+        "PD held over a control step (walking.gains.joints)."))
     walking: LeggedWalkingConfig = Field(description="Base, feet and gait.")
     sim: LeggedSimConfig = Field(default_factory=LeggedSimConfig, description="Simulation.")
     plant: LeggedPlantConfig = Field(default_factory=LeggedPlantConfig,

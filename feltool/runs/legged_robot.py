@@ -65,6 +65,8 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
         else:
             legged = load_legged_urdf(path, feet, effort=cfg.effort,
                                       posture=cfg.walking.posture or {})
+        if cfg.armature is not None:
+            legged.model.armature[6:] = cfg.armature
         check_legs_bent(cfg, legged)
         check_joint_gains(cfg, legged)
         return legged
