@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -291,6 +292,18 @@ def _solo_urdf() -> str:
     return str(erd.load("solo12").urdf)
 
 
+def _stiff_knees_urdf(directory: Path) -> str:
+    """Solo-12's URDF with its knees' range 0 +- 1e-3 rad: straight at its zeros, no bent
+    posture within its limits."""
+    text = Path(_solo_urdf()).read_text()
+    text = re.sub(r'(<joint name="\w\w_KFE".*?<limit[^>]*?)lower="[^"]*" upper="[^"]*"',
+                  r'\1lower="-0.001" upper="0.001"', text, flags=re.S)
+    assert text.count('lower="-0.001"') == 4
+    path = directory / "stiff_knees.urdf"
+    path.write_text(text)
+    return str(path)
+
+
 def _bolt_urdf() -> str:  # a biped as published: two legs of three joints
     import example_robot_data as erd
 
@@ -315,8 +328,9 @@ BAD = [
     ({"robot": "example-robot-data:solo8", "walking__feet": None},
      "walking.feet: the gait places each foot in 3D, which takes a leg of at least three "
      "joints: FL's has 2"),
-    ({"robot": "{urdf}"}, "walking.posture: in the reference posture (none given: the "
-                          "model's, a URDF's zeros) the legs of FL, FR, HL, HR cannot move"),
+    ({"robot": "{stiff}"}, "walking.posture: in the reference posture (none given: the "
+                           "model's, a URDF's zeros) the legs of FL, FR, HL, HR cannot move"),
+    ({"walking__base": "free-flyer"}, "walking.base: 'free-flyer' is neither planar"),
     ({"robot": "example-robot-data:go1", "walking__feet": {
         "FL": {"frame": "FL_FOOT"}, "FR": {"frame": "FR_foot"}, "HL": {"frame": "RL_foot"},
         "HR": {"frame": "RR_foot"}}}, "walking.feet.FL: no frame 'FL_FOOT' in go1"),
@@ -330,7 +344,7 @@ BAD = [
     ({"robot": "missing.urdf"}, "robot: "),
     ({"robot": "anymal"}, "robot: 'anymal' is neither solo12, talos_legs, "
                          "example-robot-data:NAME nor a URDF"),
-    ({"robot": "{urdf}", "walking__feet": None},  # its feet found, its zeros straight
+    ({"robot": "{stiff}", "walking__feet": None},  # its feet found, its zeros straight
      "walking.posture: in the reference posture (none given: the model's, a URDF's zeros)"),
     ({"effort": -1}, "effort:"),
     ({"armature": -0.01}, "armature:"),
@@ -363,7 +377,8 @@ BAD = [
 
 @pytest.mark.parametrize("changes, message", BAD, ids=[m.split(":")[0] for _, m in BAD])
 def test_a_bad_field_exits_2_naming_it(tmp_path, capsys, changes, message):
-    urdfs = {"{urdf}": _solo_urdf, "{bolt}": _bolt_urdf}
+    urdfs = {"{urdf}": _solo_urdf, "{bolt}": _bolt_urdf,
+             "{stiff}": lambda: _stiff_knees_urdf(tmp_path)}
     changes = {k: urdfs[v]() if isinstance(v, str) and v in urdfs else v
                for k, v in changes.items()}
     path = _config(tmp_path, **changes)

@@ -160,7 +160,15 @@ def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
 
 
 def parse_config(data: dict[str, Any], source: str | None = None) -> ExperimentConfig:
-    """Validate a raw mapping; raises :class:`ConfigError` listing every problem."""
+    """Validate a raw mapping; raises :class:`ConfigError` listing every problem (a
+    ``walking.base`` that picks no schema alone: the rest would be judged by the wrong one)."""
+    walking = data.get("walking") if isinstance(data, dict) else None
+    base = walking.get("base", "planar") if isinstance(walking, dict) else "planar"
+    if base != "planar" and not isinstance(base, list):
+        raise ConfigError([("walking.base", f"{base!r} is neither planar (a sagittal walker on "
+                            "base_x, base_z, base_pitch), a list of the URDF's own three base "
+                            "joints, nor free_flyer (a 3D legged robot, its own schema)")],
+                          source)
     try:
         cfg = ExperimentConfig.model_validate(data)
     except ValidationError as exc:

@@ -139,9 +139,11 @@ class LeggedWalkingConfig(Strict):
     posture: dict[str, Annotated[FiniteFloat, Field(ge=-100.0, le=100.0)]] | None = Field(
         None, description="The robot's reference posture: motor joint name -> its angle in "
         "[rad] (a prismatic joint's position in [m]); the joints not named keep the model's "
-        "(solo12, talos_legs: example-robot-data's reference posture; a URDF: 0, which for "
-        "most legs is straight and singular). The robot stands in it, the feet put on the "
-        "ground, and the gait's poses start from it.")
+        "(solo12, talos_legs, example-robot-data:NAME: example-robot-data's reference posture; "
+        "a URDF: 0). None given and the legs straight there (singular, as a URDF's zeros mostly "
+        "are): each leg bent until its foot is 0.3 of its reach higher, knees back "
+        "(feltool/walking/legged/crouch.py); config.yaml records the posture run with. The "
+        "robot stands in it, the feet put on the ground, and the gait's poses start from it.")
     gait: TrotGaitConfig = Field(default_factory=TrotGaitConfig, description="The trot.")
     walk: WalkGaitConfig | None = Field(None, description="A biped's walk instead of the trot "
         "(the feet are then the soles' corners, left and right; default for talos_legs: each "

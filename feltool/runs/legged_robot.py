@@ -22,6 +22,7 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
     config file ``source``) naming ``robot`` (a missing or unreadable URDF),
     ``walking.feet.<foot>`` (no such frame or link), ``walking.feet`` / ``walking.posture``
     (:func:`check_legs_bent`) or ``walking.gains.joints`` (:func:`check_joint_gains`)."""
+    from feltool.walking.legged.crouch import crouched
     from feltool.walking.legged.model import (
         SOLO12_FEET,
         TALOS_FEET,
@@ -67,6 +68,9 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
                                       posture=cfg.walking.posture or {})
         if cfg.armature is not None:
             legged.model.armature[6:] = cfg.armature
+        if not cfg.walking.posture and straight_legs(legged):  # a URDF's zeros: crouch
+            q0 = crouched(legged.model, legged.q0, legged.feet)
+            legged = legged if q0 is None else dataclasses.replace(legged, q0=q0)
         check_legs_bent(cfg, legged)
         check_joint_gains(cfg, legged)
         return legged
@@ -106,14 +110,27 @@ def srdf_feet(srdf: str | None) -> dict[str, dict] | None:
 SINGULAR_LEG = 1e-6
 
 
+def straight_legs(legged) -> list[str]:
+    """The feet whose leg cannot move them in every direction in the reference posture
+    (standing): straight, or folded onto itself."""
+    from feltool.walking.legged.contact import LeggedContact
+
+    q = legged.standing()
+    J = LeggedContact(legged).jacobian(q, tuple(legged.feet))
+    out = []
+    for i, foot in enumerate(legged.feet):
+        s = np.linalg.svd(J[3 * i:3 * i + 3, legged.leg(foot)], compute_uv=False)
+        if s[-1] < SINGULAR_LEG * s[0]:
+            out.append(foot)
+    return out
+
+
 def check_legs_bent(cfg: LeggedExperimentConfig, legged) -> None:
     """Refuse legs of fewer than three joints (naming ``walking.feet``), and naming
     ``walking.posture`` a reference posture with the base not above the feet or in which a
     foot cannot move along every direction by its leg's joints (and the feet): a straight leg,
     as a URDF's zero posture mostly is, on which the gait's inverse kinematics and the contact
     forces are singular."""
-    from feltool.walking.legged.contact import LeggedContact
-
     short = {f: len(legged.leg(f)) for f in legged.feet if len(legged.leg(f)) < 3}
     if short:
         raise ConfigError([("walking.feet", "the gait places each foot in 3D, which takes a "
@@ -126,12 +143,7 @@ def check_legs_bent(cfg: LeggedExperimentConfig, legged) -> None:
         raise ConfigError([("walking.posture", (
             f"in the reference posture{given} the base's origin is {-height:.3g} m below its "
             "feet, not above them: give a posture that stands on them"))])
-    J = LeggedContact(legged).jacobian(q, tuple(legged.feet))
-    straight = []
-    for i, foot in enumerate(legged.feet):
-        s = np.linalg.svd(J[3 * i:3 * i + 3, legged.leg(foot)], compute_uv=False)
-        if s[-1] < SINGULAR_LEG * s[0]:
-            straight.append(foot)
+    straight = straight_legs(legged)
     if straight:
         raise ConfigError([("walking.posture", (
             f"in the reference posture{given} the legs of {', '.join(straight)} cannot move "
@@ -211,14 +223,18 @@ def _with_gains(extra: dict, gains) -> dict:
 
 def as_run(cfg: LeggedExperimentConfig, legged) -> LeggedExperimentConfig:
     """``cfg`` with the gains and the trot's timing the robot runs with
-    (:func:`gait_and_controller`: the robot's defaults where the config leaves them out), as
-    ``config.yaml`` records it."""
+    (:func:`gait_and_controller`: the robot's defaults where the config leaves them out) and its
+    reference posture (every motor joint's; a crouched URDF's too), as ``config.yaml`` records
+    it."""
     gait, extra = gait_and_controller(cfg, legged)
     g = extra["gains"]
     gains = LeggedGainsConfig(**{k: getattr(g, k) for k in BASE_GAINS},
                               horizontal=extra["horizontal"], swing=extra["swing_gains"],
                               normal_force_min=extra["normal_force_min"])
-    walking = {"gains": gains}
+    m = legged.model
+    posture = {m.names[j]: float(legged.q0[m.joints[j].idx_q]) for j in range(2, m.njoints)
+               if m.joints[j].nq == 1}
+    walking = {"gains": gains, "posture": posture}
     if cfg.walking.walk is None:
         walking["gait"] = TrotGaitConfig(**{k: float(getattr(gait, k))
                                             for k in TrotGaitConfig.model_fields})
