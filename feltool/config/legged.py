@@ -140,7 +140,7 @@ class LeggedWalkingConfig(Strict):
         None, description="The robot's reference posture: motor joint name -> its angle in "
         "[rad] (a prismatic joint's position in [m]); the joints not named keep the model's "
         "(solo12, talos_legs, example-robot-data:NAME: example-robot-data's reference posture; "
-        "a URDF: 0). None given and the legs straight there (singular, as a URDF's zeros mostly "
+        "a URDF: 0). A trot's, none given and the legs straight there (singular, as a URDF's zeros mostly "
         "are): each leg bent until its foot is 0.3 of its reach higher, knees back "
         "(feltool/walking/legged/crouch.py); config.yaml records the posture run with. The "
         "robot stands in it, the feet put on the ground, and the gait's poses start from it.")

@@ -68,7 +68,8 @@ def load_legged_robot(cfg: LeggedExperimentConfig, base_dir: Path | None = None,
                                       posture=cfg.walking.posture or {})
         if cfg.armature is not None:
             legged.model.armature[6:] = cfg.armature
-        if not cfg.walking.posture and straight_legs(legged):  # a URDF's zeros: crouch
+        if cfg.walking.walk is None and not cfg.walking.posture and straight_legs(legged):
+            # a quadruped's URDF at its zeros: crouched (a biped's soles are not point feet)
             q0 = crouched(legged.model, legged.q0, legged.feet)
             legged = legged if q0 is None else dataclasses.replace(legged, q0=q0)
         check_legs_bent(cfg, legged)
