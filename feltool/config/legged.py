@@ -140,9 +140,10 @@ class LeggedWalkingConfig(Strict):
         None, description="The robot's reference posture: motor joint name -> its angle in "
         "[rad] (a prismatic joint's position in [m]); the joints not named keep the model's "
         "(solo12, talos_legs, example-robot-data:NAME: example-robot-data's reference posture; "
-        "a URDF: 0). A trot's, none given and the legs straight there (singular, as a URDF's zeros mostly "
-        "are): each leg bent until its foot is 0.3 of its reach higher, knees back "
-        "(feltool/walking/legged/crouch.py); config.yaml records the posture run with. The "
+        "a URDF: 0). For a trot, with none given and the legs straight there (singular, as a "
+        "URDF's zeros mostly are), each leg is bent until its foot is 0.3 of its reach "
+        "higher, knees back (feltool/walking/legged/crouch.py); config.yaml records the "
+        "posture run with. The "
         "robot stands in it, the feet put on the ground, and the gait's poses start from it.")
     gait: TrotGaitConfig = Field(default_factory=TrotGaitConfig, description="The trot.")
     walk: WalkGaitConfig | None = Field(None, description="A biped's walk instead of the trot "
