@@ -286,10 +286,11 @@ def solo_posture(prefix: str = "") -> dict[str, float]:
             for j, a in (("HAA", 0.1 * side), ("HFE", 0.8 * end), ("KFE", -1.6 * end))}
 
 
-def _solo_urdf() -> str:
+def _solo_urdf(name: str = "solo12") -> str:
+    """Solo-12's URDF file (or another example-robot-data robot's)."""
     import example_robot_data as erd
 
-    return str(erd.load("solo12").urdf)
+    return str(erd.load(name).urdf)
 
 
 def _stiff_knees_urdf(directory: Path) -> str:
@@ -304,10 +305,6 @@ def _stiff_knees_urdf(directory: Path) -> str:
     return str(path)
 
 
-def _bolt_urdf() -> str:  # a biped as published: two legs of three joints
-    import example_robot_data as erd
-
-    return str(erd.load("bolt").urdf)
 
 
 SOLO_FEET = {f: {"frame": f"{f}_FOOT"} for f in ("FL", "FR", "HL", "HR")}
@@ -377,7 +374,7 @@ BAD = [
 
 @pytest.mark.parametrize("changes, message", BAD, ids=[m.split(":")[0] for _, m in BAD])
 def test_a_bad_field_exits_2_naming_it(tmp_path, capsys, changes, message):
-    urdfs = {"{urdf}": _solo_urdf, "{bolt}": _bolt_urdf,
+    urdfs = {"{urdf}": _solo_urdf, "{bolt}": lambda: _solo_urdf("bolt"),  # a biped
              "{stiff}": lambda: _stiff_knees_urdf(tmp_path)}
     changes = {k: urdfs[v]() if isinstance(v, str) and v in urdfs else v
                for k, v in changes.items()}

@@ -106,24 +106,16 @@ def srdf_feet(srdf: str | None) -> dict[str, dict] | None:
     return {f: feet[f] for f in ("FL", "FR", "HL", "HR")}
 
 
-#: A leg whose foot's Jacobian (on the leg's joints) has its smallest singular value below
-#: this fraction of its largest is singular: straight, or folded onto itself
-SINGULAR_LEG = 1e-6
-
-
-def straight_legs(legged) -> list[str]:
-    """The feet whose leg cannot move them in every direction in the reference posture
-    (standing): straight, or folded onto itself."""
+def straight_legs(legged, q: np.ndarray | None = None) -> list[str]:
+    """The feet whose leg cannot move them in every direction in ``q`` (default the reference
+    posture, standing): straight, or folded onto itself."""
     from feltool.walking.legged.contact import LeggedContact
+    from feltool.walking.legged.crouch import singular_leg
 
-    q = legged.standing()
+    q = legged.standing() if q is None else q
     J = LeggedContact(legged).jacobian(q, tuple(legged.feet))
-    out = []
-    for i, foot in enumerate(legged.feet):
-        s = np.linalg.svd(J[3 * i:3 * i + 3, legged.leg(foot)], compute_uv=False)
-        if s[-1] < SINGULAR_LEG * s[0]:
-            out.append(foot)
-    return out
+    return [foot for i, foot in enumerate(legged.feet)
+            if singular_leg(J[3 * i:3 * i + 3, legged.leg(foot)])]
 
 
 def check_legs_bent(cfg: LeggedExperimentConfig, legged) -> None:
@@ -144,7 +136,7 @@ def check_legs_bent(cfg: LeggedExperimentConfig, legged) -> None:
         raise ConfigError([("walking.posture", (
             f"in the reference posture{given} the base's origin is {-height:.3g} m below its "
             "feet, not above them: give a posture that stands on them"))])
-    straight = straight_legs(legged)
+    straight = straight_legs(legged, q)
     if straight:
         raise ConfigError([("walking.posture", (
             f"in the reference posture{given} the legs of {', '.join(straight)} cannot move "

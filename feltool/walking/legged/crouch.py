@@ -17,39 +17,34 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from feltool.walking.legged.tree_feet import leg_joints
+
 #: How much higher the feet are put than in the straight posture, as a fraction of each leg's
 #: reach from its second joint [-]
 CROUCH = 0.3
 
 
-def _leg_joints(model: pin.Model, frame: int) -> list[int]:
-    """The joints from the base to ``frame``'s parent joint, base first."""
-    j, out = model.frames[frame].parentJoint, []
-    while j > 1:
-        out.append(j)
-        j = model.parents[j]
-    return out[::-1]
+#: A leg whose foot's Jacobian (on the leg's joints) has its smallest singular value below
+#: this fraction of its largest is singular: straight, or folded onto itself
+SINGULAR_LEG = 1e-6
 
 
-def _bent(model, data, q, frame, joints, singular) -> bool:
-    pin.computeJointJacobians(model, data, q)
-    pin.updateFramePlacements(model, data)
-    J = pin.getFrameJacobian(model, data, frame, pin.LOCAL_WORLD_ALIGNED)[:3]
-    s = np.linalg.svd(J[:, [model.joints[j].idx_v for j in joints]], compute_uv=False)
-    return s[-1] >= singular * s[0]
+def singular_leg(J: np.ndarray) -> bool:
+    """Whether a foot's Jacobian ``(3, joints of its leg)`` cannot move it in every direction
+    (:data:`SINGULAR_LEG`)."""
+    s = np.linalg.svd(J, compute_uv=False)
+    return bool(s[-1] < SINGULAR_LEG * s[0])
 
 
-def crouched(model: pin.Model, q: np.ndarray, feet: dict[str, int], singular: float = 1e-6
-             ) -> np.ndarray | None:
+def crouched(model: pin.Model, q: np.ndarray, feet: dict[str, int]) -> np.ndarray | None:
     """``q`` ``(nq,)`` with every leg of ``feet`` (name -> frame id) bent as the module says,
-    or None when a leg has no such posture. ``singular``: a leg whose foot's Jacobian has its
-    smallest singular value below this fraction of its largest is straight."""
+    or None when a leg has no such posture."""
     data = model.createData()
     out = np.array(q, float)
     pin.framesForwardKinematics(model, data, out)
     base = data.oMi[1]
     for frame in feet.values():
-        joints = _leg_joints(model, frame)
+        joints = leg_joints(model, model.frames[frame].parentJoint)
         if len(joints) < 3 or any(model.joints[j].nq != 1 for j in joints):
             return None
         iq = [model.joints[j].idx_q for j in joints]
@@ -75,10 +70,11 @@ def crouched(model: pin.Model, q: np.ndarray, feet: dict[str, int], singular: fl
                 dv = np.zeros(model.nv)
                 dv[iv] = -np.linalg.lstsq(J, err, rcond=None)[0]
                 x = pin.integrate(model, x, dv)
-            pin.framesForwardKinematics(model, data, x)
+            pin.computeJointJacobians(model, data, x)
+            pin.updateFramePlacements(model, data)
+            J = pin.getFrameJacobian(model, data, frame, pin.LOCAL_WORLD_ALIGNED)[:3, iv]
             if np.abs(data.oMf[frame].translation - target).max() > 1e-8 or \
-                    np.any(x[iq] < lo - 1e-9) or np.any(x[iq] > hi + 1e-9) or \
-                    not _bent(model, data, x, frame, joints, singular):
+                    np.any(x[iq] < lo - 1e-9) or np.any(x[iq] > hi + 1e-9) or singular_leg(J):
                 continue
             hip, knee = data.oMi[joints[0]].translation, data.oMi[joints[-1]].translation
             line = target - hip

@@ -23,7 +23,7 @@ import pinocchio as pin
 from feltool.errors import ConfigError, RobotError
 from feltool.robot.mujoco import MIN_INERTIA
 from feltool.robot.robot import check_model_dynamics
-from feltool.walking.legged.tree_feet import quadruped_feet
+from feltool.walking.legged.tree_feet import leg_joints, quadruped_feet
 
 #: The feet of Solo-12 in example-robot-data, by their frames
 SOLO12_FEET = {"FL": {"frame": "FL_FOOT"}, "FR": {"frame": "FR_FOOT"},
@@ -78,11 +78,9 @@ class LeggedModel:
 
     def leg(self, foot: str) -> list[int]:
         """The velocity indices of the joints between the base and the ``foot`` (its leg)."""
-        m, j, idx = self.model, self.model.frames[self.feet[foot]].parentJoint, []
-        while j > 1:
-            idx.append(m.joints[j].idx_v)
-            j = m.parents[j]
-        return sorted(idx)
+        m = self.model
+        return sorted(m.joints[j].idx_v
+                      for j in leg_joints(m, m.frames[self.feet[foot]].parentJoint))
 
     def foot_positions(self, q: np.ndarray) -> np.ndarray:
         """``(n_feet, 3)`` positions of the feet's contact points in the world, in [m]."""

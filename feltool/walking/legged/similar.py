@@ -28,6 +28,7 @@ import numpy as np
 
 from feltool.walking.legged.control import StandGains
 from feltool.walking.legged.model import LeggedModel
+from feltool.walking.legged.tree_feet import leg_joints
 from feltool.walking.legged.trot import TrotController
 
 #: Solo-12's mass [kg], its legs' [kg] and its base's height above its feet [m] in its
@@ -57,12 +58,8 @@ class BodyScale:
 def legs_mass(legged: LeggedModel) -> float:
     """The mass [kg] of the bodies between the base and the feet (each once)."""
     m = legged.model
-    joints = set()
-    for frame in legged.feet.values():
-        j = m.frames[frame].parentJoint
-        while j > 1:  # joint 1 is the free flyer: the base
-            joints.add(j)
-            j = m.parents[j]
+    joints = {j for frame in legged.feet.values()
+              for j in leg_joints(m, m.frames[frame].parentJoint)}
     return float(sum(m.inertias[j].mass for j in sorted(joints)))
 
 

@@ -23,6 +23,16 @@ from feltool.errors import ConfigError
 LOW = 0.1
 
 
+def leg_joints(model: pin.Model, joint: int) -> list[int]:
+    """The joints from the base (joint 1, the free flyer, not included) to ``joint``, base
+    first: a leg, when ``joint`` is its last."""
+    out = []
+    while joint > 1:
+        out.append(joint)
+        joint = model.parents[joint]
+    return out[::-1]
+
+
 def leg_ends(model: pin.Model, q: np.ndarray) -> list[tuple[str, np.ndarray, int]]:
     """``(frame name, position in the world [m] at q, joints from the base)`` for every leaf
     joint's farthest frame (a point beyond the leaf joint's origin) of a free-flyer ``model``."""
@@ -38,10 +48,8 @@ def leg_ends(model: pin.Model, q: np.ndarray) -> list[tuple[str, np.ndarray, int
         if not frames or max(reach) < 1e-9:
             continue
         best = frames[int(np.argmax(reach))]
-        depth, k = 0, j
-        while k > 1:
-            depth, k = depth + 1, model.parents[k]
-        ends.append((model.frames[best].name, data.oMf[best].translation.copy(), depth))
+        ends.append((model.frames[best].name, data.oMf[best].translation.copy(),
+                     len(leg_joints(model, j))))
     return ends
 
 
